@@ -1,0 +1,1 @@
+"""Terminal keyboard teleoperation for the UR + RG2 simulation."""

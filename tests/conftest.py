@@ -1,0 +1,91 @@
+"""Shared fixtures: one rclpy Context per test, on its own DDS domain, spun in the background."""
+
+import itertools
+import os
+import threading
+import time
+from typing import Callable, Iterator
+
+import pytest
+
+# Keep every byte of DDS traffic on this host, before rclpy is imported anywhere.
+os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+
+import rclpy  # noqa: E402
+from rclpy.context import Context  # noqa: E402
+from rclpy.executors import MultiThreadedExecutor  # noqa: E402
+from rclpy.node import Node  # noqa: E402
+
+# Fast DDS supports domain ids 0-232; spread concurrent pytest runs by pid.
+_domain_ids = itertools.count((os.getpid() * 37) % 200)
+
+
+def next_domain_id() -> int:
+    """Return a domain id no other test of this run uses (and unlikely for another run)."""
+    return 1 + next(_domain_ids) % 230
+
+
+def wait_for(predicate: Callable[[], object], timeout: float, what: str,
+             interval: float = 0.01) -> object:
+    """Poll ``predicate`` until it returns a truthy value; fail the test after ``timeout`` s."""
+    deadline = time.monotonic() + timeout
+    while True:
+        value = predicate()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise AssertionError(f'timed out after {timeout:.1f} s waiting for {what}')
+        time.sleep(interval)
+
+
+class RosGraph:
+    """Nodes of one test, on a private context and domain, spun by a background executor."""
+
+    def __init__(self) -> None:
+        self.domain_id = next_domain_id()
+        self.context = Context()
+        rclpy.init(context=self.context, domain_id=self.domain_id)
+        self.executor = MultiThreadedExecutor(num_threads=4, context=self.context)
+        self._thread = threading.Thread(target=self._spin, daemon=True)
+        self._thread.start()
+        self._nodes: list[Node] = []
+
+    @property
+    def env(self) -> dict[str, str]:
+        """Environment for a subprocess that should join this graph."""
+        return dict(os.environ, ROS_DOMAIN_ID=str(self.domain_id),
+                    ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+
+    def _spin(self) -> None:
+        try:
+            self.executor.spin()
+        except Exception:  # noqa: BLE001 - the context is shut down under the executor
+            if self.context.ok():
+                raise
+
+    def add(self, node: Node) -> Node:
+        """Spin ``node`` with the graph's executor; it is destroyed at the end of the test."""
+        self._nodes.append(node)
+        self.executor.add_node(node)
+        return node
+
+    def node(self, name: str, **kwargs) -> Node:
+        """Create a plain helper node (for subscribers and clients) in this graph."""
+        return self.add(Node(name, context=self.context, **kwargs))
+
+    def shutdown(self) -> None:
+        self.executor.shutdown(timeout_sec=5.0)
+        for node in reversed(self._nodes):
+            node.destroy_node()
+        self.context.try_shutdown()
+        self._thread.join(timeout=5.0)
+
+
+@pytest.fixture
+def ros_graph() -> Iterator[RosGraph]:
+    """One ROS graph for this test: private context and domain, shut down afterwards."""
+    graph = RosGraph()
+    try:
+        yield graph
+    finally:
+        graph.shutdown()

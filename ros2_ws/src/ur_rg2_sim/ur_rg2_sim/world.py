@@ -1,0 +1,297 @@
+"""The pybullet world: floor, UR arm with RG2 gripper, ball. Plain Python, no ROS.
+
+Everything here runs on one thread (pybullet clients are not thread-safe); the node feeds it
+commands from that thread only.
+"""
+
+from dataclasses import dataclass, field
+import functools
+import math
+from pathlib import Path
+import tempfile
+from typing import Iterable, Mapping, Sequence
+
+import pybullet
+
+from ur_rg2_sim.robot_model import (
+    ARM_JOINTS, GRIPPER_JOINTS, joint_limits, JointLimit, RG2_MAX_FINGER_SPEED, RG2_MAX_FORCE,
+    RG2_MAX_OPENING, TCP_LINK, write_robot_urdf,
+)
+
+DEFAULT_BALL_POSITION = (0.45, -0.35, 0.03)
+BALL_MASS = 0.05  # kg, a light foam ball the RG2's 40 N holds easily
+
+# Contact settings that make a friction grasp hold: rubber pads, a ball that neither spins nor
+# rolls out between them, and a little compliance so the two single-point contacts stay stable.
+_PAD_FRICTION = 1.5
+_BALL_FRICTION = 1.2
+_BALL_ROLLING_FRICTION = 1e-4
+_BALL_SPINNING_FRICTION = 1e-3
+_CONTACT_STIFFNESS = 3e4
+_CONTACT_DAMPING = 1e2
+
+# A finger that moves slower than this is stopped (m/s).
+_FINGER_STOPPED_SPEED = 1e-3
+# Fingers stopped this far short of closed hold something (m of opening).
+_GRASP_MIN_OPENING = 0.002
+
+
+@dataclass
+class WorldConfig:
+    """Start-up settings of the world."""
+
+    robot_model: str = 'ur5'
+    physics_rate: float = 240.0
+    ball_position: Sequence[float] = DEFAULT_BALL_POSITION
+    ball_radius: float = 0.03
+    ball_color: Sequence[float] = (1.0, 0.0, 0.0, 1.0)
+    home_position: Sequence[float] = field(default_factory=lambda: [0.0] * len(ARM_JOINTS))
+    gui: bool = False
+
+
+@dataclass(frozen=True)
+class JointStateSample:
+    """Positions (rad or m), velocities and efforts of the arm and gripper joints, in order."""
+
+    names: tuple[str, ...]
+    positions: list[float]
+    velocities: list[float]
+    efforts: list[float]
+
+
+class SimWorld:
+    """A pybullet world with the arm under position control and a force-limited RG2."""
+
+    def __init__(self, config: WorldConfig) -> None:
+        self.config = config
+        self.dt = 1.0 / config.physics_rate
+        self.client = pybullet.connect(pybullet.GUI if config.gui else pybullet.DIRECT)
+        self._p = _ClientCalls(self.client)
+        self._p.setPhysicsEngineParameter(fixedTimeStep=self.dt, numSolverIterations=50)
+        self._p.setGravity(0, 0, -9.81)
+        self.floor = self._create_floor()
+        self._model_dir = tempfile.TemporaryDirectory(prefix='ur_rg2_sim-')
+        urdf = write_robot_urdf(config.robot_model, Path(self._model_dir.name))
+        self.limits: dict[str, JointLimit] = joint_limits(urdf)
+        self.robot = self._p.loadURDF(str(urdf), [0, 0, 0], useFixedBase=True,
+                                      flags=pybullet.URDF_USE_INERTIA_FROM_FILE)
+        self._joint_index = {
+            self._p.getJointInfo(self.robot, i)[1].decode(): i
+            for i in range(self._p.getNumJoints(self.robot))
+        }
+        self._link_index = {
+            self._p.getJointInfo(self.robot, i)[12].decode(): i
+            for i in range(self._p.getNumJoints(self.robot))
+        }
+        self.joint_names = ARM_JOINTS + GRIPPER_JOINTS
+        self._indices = [self._joint_index[name] for name in self.joint_names]
+        self._configure_contacts()
+        self.arm_targets = dict.fromkeys(ARM_JOINTS, 0.0)
+        self.set_arm_positions(dict(zip(ARM_JOINTS, config.home_position)))
+        self.gripper_target = RG2_MAX_OPENING
+        self._drive_gripper()
+        self.ball = self._create_ball()
+        self.extra_bodies: list[int] = []
+
+    # -- construction -------------------------------------------------------------------------
+
+    def _create_floor(self) -> int:
+        # Collision only: the camera draws the floor analytically, which is far cheaper than
+        # rasterising a screen-filling plane (see camera.py).
+        # A body without a visual shape is drawn from its collision shape; a speck of a visual
+        # below the floor (hidden there by the camera) keeps the plane out of the renderer.
+        speck = self._p.createVisualShape(pybullet.GEOM_SPHERE, radius=1e-4,
+                                          visualFramePosition=[0, 0, -1])
+        floor = self._p.createMultiBody(0, self._p.createCollisionShape(pybullet.GEOM_PLANE),
+                                        speck)
+        self._p.changeDynamics(floor, -1, lateralFriction=1.0)
+        return floor
+
+    def _configure_contacts(self) -> None:
+        # The UR zero pose (the default home) stretches the arm out at shoulder height with
+        # the wrist and gripper reaching just below the base plane; the arm therefore passes
+        # through the floor instead of fighting it, while it still collides with the ball.
+        for link in range(-1, self._p.getNumJoints(self.robot)):
+            self._p.setCollisionFilterPair(self.robot, self.floor, link, -1, 0)
+        for name in ('rg2_left_finger', 'rg2_right_finger'):
+            self._p.changeDynamics(
+                self.robot, self._link_index[name], lateralFriction=_PAD_FRICTION,
+                spinningFriction=_BALL_SPINNING_FRICTION,
+                rollingFriction=_BALL_ROLLING_FRICTION,
+                contactStiffness=_CONTACT_STIFFNESS, contactDamping=_CONTACT_DAMPING)
+
+    def _create_ball(self) -> int:
+        radius = self.config.ball_radius
+        ball = self._p.createMultiBody(
+            BALL_MASS,
+            self._p.createCollisionShape(pybullet.GEOM_SPHERE, radius=radius),
+            self._p.createVisualShape(pybullet.GEOM_SPHERE, radius=radius,
+                                      rgbaColor=list(self.config.ball_color)),
+            basePosition=list(self.config.ball_position))
+        self._p.changeDynamics(ball, -1, lateralFriction=_BALL_FRICTION,
+                               rollingFriction=_BALL_ROLLING_FRICTION,
+                               spinningFriction=_BALL_SPINNING_FRICTION, restitution=0.0)
+        return ball
+
+    # -- arm ----------------------------------------------------------------------------------
+
+    def clamp(self, name: str, position: float) -> float:
+        """Clamp ``position`` to the joint limits of ``name``."""
+        limit = self.limits[name]
+        return min(max(position, limit.lower), limit.upper)
+
+    def set_arm_targets(self, targets: Mapping[str, float]) -> dict[str, float]:
+        """Move the named arm joints toward new targets (clamped); return the targets set."""
+        applied = {name: self.clamp(name, value) for name, value in targets.items()}
+        self.arm_targets.update(applied)
+        for name, target in applied.items():
+            limit = self.limits[name]
+            self._p.setJointMotorControl2(
+                self.robot, self._joint_index[name], pybullet.POSITION_CONTROL,
+                targetPosition=target, force=limit.effort, maxVelocity=limit.velocity)
+        return applied
+
+    def jog_arm(self, deltas: Mapping[str, float]) -> dict[str, float]:
+        """Add ``deltas`` to the named joints' current targets; return the targets set."""
+        return self.set_arm_targets(
+            {name: self.arm_targets[name] + delta for name, delta in deltas.items()})
+
+    def set_arm_positions(self, positions: Mapping[str, float]) -> None:
+        """Teleport the named joints (at rest) and hold them there."""
+        for name, position in positions.items():
+            self._p.resetJointState(self.robot, self._joint_index[name],
+                                    self.clamp(name, position), 0.0)
+        self.set_arm_targets(positions)
+
+    # -- gripper ------------------------------------------------------------------------------
+
+    def open_gripper(self) -> None:
+        """Drive the fingers to the full 110 mm opening."""
+        self.gripper_target = RG2_MAX_OPENING
+        self._drive_gripper()
+
+    def close_gripper(self) -> None:
+        """Drive the fingers closed with the RG2's maximum force; an object stops them."""
+        self.gripper_target = 0.0
+        self._drive_gripper()
+
+    def _drive_gripper(self) -> None:
+        for name in GRIPPER_JOINTS:
+            self._p.setJointMotorControl2(
+                self.robot, self._joint_index[name], pybullet.POSITION_CONTROL,
+                targetPosition=self.gripper_target / 2, force=RG2_MAX_FORCE,
+                maxVelocity=RG2_MAX_FINGER_SPEED)
+
+    def gripper_opening(self) -> float:
+        """Return the distance between the finger pads, metres."""
+        return sum(self._p.getJointState(self.robot, self._joint_index[name])[0]
+                   for name in GRIPPER_JOINTS)
+
+    def gripper_stopped(self) -> bool:
+        """Return whether both fingers have stopped moving (at the target or blocked)."""
+        return all(abs(self._p.getJointState(self.robot, self._joint_index[name])[1])
+                   < _FINGER_STOPPED_SPEED for name in GRIPPER_JOINTS)
+
+    def gripper_holds_object(self) -> bool:
+        """Return whether the closed fingers are held apart by something between them."""
+        if self.gripper_target > 0.0:
+            return False
+        return self.gripper_opening() > _GRASP_MIN_OPENING and all(
+            self._p.getContactPoints(self.robot, linkIndexA=self._link_index[link])
+            for link in ('rg2_left_finger', 'rg2_right_finger'))
+
+    # -- state --------------------------------------------------------------------------------
+
+    def step(self) -> None:
+        """Advance the simulation by one physics step."""
+        self._p.stepSimulation()
+
+    def joint_states(self) -> JointStateSample:
+        """Return the current state of the arm and gripper joints."""
+        states = self._p.getJointStates(self.robot, self._indices)
+        return JointStateSample(
+            self.joint_names,
+            [s[0] for s in states], [s[1] for s in states], [s[3] for s in states])
+
+    def link_pose(self, link: str = TCP_LINK) -> tuple[tuple, tuple]:
+        """Return the world position and xyzw orientation of a robot link."""
+        state = self._p.getLinkState(self.robot, self._link_index[link],
+                                     computeForwardKinematics=True)
+        return state[4], state[5]
+
+    def body_position(self, body: int) -> tuple[float, float, float]:
+        """Return the world position of a body's base (e.g. ``world.ball``)."""
+        return self._p.getBasePositionAndOrientation(body)[0]
+
+    def set_ball_position(self, position: Sequence[float]) -> None:
+        """Move the ball to ``position`` at rest."""
+        self._p.resetBasePositionAndOrientation(self.ball, list(position), [0, 0, 0, 1])
+        self._p.resetBaseVelocity(self.ball, [0, 0, 0], [0, 0, 0])
+
+    def inverse_kinematics(self, position: Sequence[float],
+                           orientation: Sequence[float] | None = None) -> dict[str, float]:
+        """Return arm joint positions that put the gripper's TCP at a world pose."""
+        movable = [i for i in range(self._p.getNumJoints(self.robot))
+                   if self._p.getJointInfo(self.robot, i)[2] != pybullet.JOINT_FIXED]
+        lower, upper = zip(*[self._p.getJointInfo(self.robot, i)[8:10] for i in movable])
+        rest = [self._p.getJointState(self.robot, i)[0] for i in movable]
+        solution = self._p.calculateInverseKinematics(
+            self.robot, self._link_index[TCP_LINK], list(position),
+            targetOrientation=None if orientation is None else list(orientation),
+            lowerLimits=list(lower), upperLimits=list(upper),
+            jointRanges=[u - lo for lo, u in zip(lower, upper)], restPoses=rest,
+            maxNumIterations=200, residualThreshold=1e-5)
+        by_index = dict(zip(movable, solution))
+        return {name: _wrap(by_index[self._joint_index[name]]) for name in ARM_JOINTS}
+
+    # -- test scenery -------------------------------------------------------------------------
+
+    def add_box(self, position: Sequence[float], half_extents: Sequence[float],
+                rgba: Sequence[float], mass: float = 0.1) -> int:
+        """Add a box (e.g. a red cube that is not a ball) and return its body id."""
+        body = self._p.createMultiBody(
+            mass, self._p.createCollisionShape(pybullet.GEOM_BOX, halfExtents=list(half_extents)),
+            self._p.createVisualShape(pybullet.GEOM_BOX, halfExtents=list(half_extents),
+                                      rgbaColor=list(rgba)),
+            basePosition=list(position))
+        self.extra_bodies.append(body)
+        return body
+
+    def add_sphere(self, position: Sequence[float], radius: float, rgba: Sequence[float],
+                   mass: float = BALL_MASS) -> int:
+        """Add another sphere (e.g. a ball of another colour) and return its body id."""
+        body = self._p.createMultiBody(
+            mass, self._p.createCollisionShape(pybullet.GEOM_SPHERE, radius=radius),
+            self._p.createVisualShape(pybullet.GEOM_SPHERE, radius=radius, rgbaColor=list(rgba)),
+            basePosition=list(position))
+        self.extra_bodies.append(body)
+        return body
+
+    def remove_bodies(self, bodies: Iterable[int]) -> None:
+        """Remove bodies added with :meth:`add_box` or :meth:`add_sphere`."""
+        for body in list(bodies):
+            self._p.removeBody(body)
+            self.extra_bodies.remove(body)
+
+    def close(self) -> None:
+        """Disconnect from pybullet; the world is unusable afterwards."""
+        if self.client is not None and pybullet.isConnected(self.client):
+            pybullet.disconnect(self.client)
+        self.client = None
+        self._model_dir.cleanup()
+
+
+def _wrap(angle: float) -> float:
+    return math.atan2(math.sin(angle), math.cos(angle))
+
+
+class _ClientCalls:
+    """pybullet functions bound to one physics client (``physicsClientId`` on every call)."""
+
+    def __init__(self, client: int) -> None:
+        self._client = client
+
+    def __getattr__(self, name: str):
+        call = functools.partial(getattr(pybullet, name), physicsClientId=self._client)
+        setattr(self, name, call)  # cached: the next lookup skips __getattr__
+        return call

@@ -1,0 +1,291 @@
+"""Web side of the browser viewer: a frame and state hub plus the aiohttp app serving it.
+
+No ROS here: the node (``viewer_node``) feeds a :class:`FrameHub` from its callbacks and runs a
+:class:`ViewerServer`; tests drive both directly.
+
+Routes: ``/`` the page, ``/state`` JSON for the page, ``/stream`` MJPEG
+(``multipart/x-mixed-replace``, like ROS's web_video_server), ``/snapshot`` one JPEG.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from collections import deque
+from collections.abc import Sequence
+import importlib.resources
+import math
+import threading
+import time
+from typing import Any
+
+from aiohttp import web
+import cv2
+import numpy as np
+
+BOUNDARY = 'frame'
+GRIPPER_PREFIX = 'rg2_'
+PAGE = importlib.resources.files(__package__).joinpath('web', 'index.html').read_text('utf-8')
+
+
+def encode_jpeg(rgb: np.ndarray, quality: int) -> bytes:
+    """Return ``rgb`` (H×W×3, uint8, RGB order) as JPEG bytes."""
+    ok, buffer = cv2.imencode('.jpg', cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR),
+                              [cv2.IMWRITE_JPEG_QUALITY, quality])
+    if not ok:
+        raise ValueError(f'OpenCV could not encode a {rgb.shape} image as JPEG')
+    return buffer.tobytes()
+
+
+def finite_or_none(value: float) -> float | None:
+    """Return ``value``, or ``None`` for NaN/inf, which JSON (and the browser) cannot parse."""
+    return value if math.isfinite(value) else None
+
+
+def joint_summary(names: Sequence[str], positions: Sequence[float]) -> dict[str, Any]:
+    """Summarise a joint state for the page: arm joints in degrees, the gripper's opening in mm.
+
+    The sim models the RG2 as two prismatic ``rg2_*`` finger joints, each at half the opening
+    between the pads (in m), so the opening is their sum. The raw ``rg2_*`` positions are kept
+    as well.
+    """
+    arm, gripper = [], []
+    for name, position in zip(names, positions, strict=True):
+        if name.startswith(GRIPPER_PREFIX):
+            gripper.append({'name': name, 'position': finite_or_none(position)})
+        else:
+            arm.append({'name': name, 'deg': finite_or_none(math.degrees(position))})
+    fingers = [joint['position'] for joint in gripper]
+    opening_mm = 1000.0 * sum(fingers) if fingers and None not in fingers else None
+    return {'joints': arm, 'gripper': {'joints': gripper, 'opening_mm': opening_mm}}
+
+
+class FrameHub:
+    """Latest camera frame and robot state, handed from ROS threads to the web server.
+
+    ``put_frame`` and ``set_state`` may be called from any thread. Each new frame is
+    JPEG-encoded at most once, lazily, the first time a client asks for it, and the same bytes
+    go to every client; frames nobody asked for are never encoded. A slow client simply
+    skips to the newest frame, so nothing queues up behind it.
+    """
+
+    def __init__(self, jpeg_quality: int = 80) -> None:
+        self.jpeg_quality = jpeg_quality
+        self.viewers = 0  # /stream clients connected now (read and written on the loop only)
+        self._lock = threading.Lock()
+        self._frame: np.ndarray | None = None
+        self._seq = 0
+        self._arrivals: deque[float] = deque(maxlen=31)  # monotonic times, for the frame rate
+        self._state: dict[str, tuple[Any, float]] = {}  # key: (value, monotonic time set)
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._wakeup: asyncio.Event | None = None
+        self._jpeg: tuple[int, asyncio.Future[bytes]] | None = None
+        self._closed = False
+
+    def put_frame(self, rgb: np.ndarray) -> None:
+        """Make ``rgb`` (H×W×3 uint8, RGB) the latest frame; it must not be modified later."""
+        with self._lock:
+            self._frame = rgb
+            self._seq += 1
+            self._arrivals.append(time.monotonic())
+            loop = self._loop
+        if loop is not None:
+            try:
+                loop.call_soon_threadsafe(self._notify)
+            except RuntimeError:  # the loop closed under us: the server is stopping
+                pass
+
+    def set_state(self, key: str, value: Any) -> None:
+        """Set one top-level entry of the ``/state`` document (``value`` must be JSON-able)."""
+        with self._lock:
+            self._state[key] = (value, time.monotonic())
+
+    def state(self) -> dict[str, Any]:
+        """Return the ``/state`` document.
+
+        It holds the entries set so far, ``ages`` (seconds since each entry was set),
+        ``camera`` statistics and the number of stream ``viewers``.
+        """
+        with self._lock:
+            entries = dict(self._state)
+            frame, seq, arrivals = self._frame, self._seq, list(self._arrivals)
+        now = time.monotonic()
+        state = {key: value for key, (value, _) in entries.items()}
+        state['ages'] = {key: now - stamp for key, (_, stamp) in entries.items()}
+        fps = None
+        if len(arrivals) >= 2 and now - arrivals[-1] < 2.0:
+            fps = (len(arrivals) - 1) / (arrivals[-1] - arrivals[0])
+        state['camera'] = {
+            'frames': seq,
+            'fps': fps,
+            'age_s': now - arrivals[-1] if arrivals else None,
+            'width': None if frame is None else frame.shape[1],
+            'height': None if frame is None else frame.shape[0],
+        }
+        state['viewers'] = self.viewers
+        return state
+
+    def attach(self, loop: asyncio.AbstractEventLoop) -> None:
+        """Deliver new-frame wake-ups to ``loop`` (call on that loop)."""
+        self._wakeup = asyncio.Event()
+        with self._lock:
+            self._loop = loop
+
+    def close(self) -> None:
+        """Wake and end every stream (call on the loop)."""
+        self._closed = True
+        with self._lock:
+            self._loop = None
+        if self._wakeup is not None:
+            self._wakeup.set()
+
+    def _notify(self) -> None:
+        if self._wakeup is not None and not self._closed:
+            # Waiters hold the old event; a fresh one is ready for the next frame.
+            fired, self._wakeup = self._wakeup, asyncio.Event()
+            fired.set()
+
+    async def next_jpeg(self, after: int) -> tuple[int, bytes] | None:
+        """Wait for a frame newer than sequence number ``after``; ``None`` once closed."""
+        while not self._closed:
+            with self._lock:
+                seq, frame = self._seq, self._frame
+            if seq > after and frame is not None:
+                return seq, await self._encoded(seq, frame)
+            await self._wakeup.wait()
+        return None
+
+    async def latest_jpeg(self) -> bytes | None:
+        """Return the newest frame as JPEG, or ``None`` when no frame came yet."""
+        with self._lock:
+            seq, frame = self._seq, self._frame
+        return None if frame is None else await self._encoded(seq, frame)
+
+    async def _encoded(self, seq: int, frame: np.ndarray) -> bytes:
+        if self._jpeg is None or self._jpeg[0] != seq:
+            # Encode off the event loop so streaming and /state stay responsive meanwhile.
+            future = asyncio.get_running_loop().run_in_executor(
+                None, encode_jpeg, frame, self.jpeg_quality)
+            self._jpeg = (seq, future)
+        # Shielded: one client going away must not cancel the encoding the others await.
+        return await asyncio.shield(self._jpeg[1])
+
+
+HUB = web.AppKey('hub', FrameHub)
+
+
+async def _index(request: web.Request) -> web.Response:
+    return web.Response(text=PAGE, content_type='text/html', headers={'Cache-Control': 'no-cache'})
+
+
+async def _state(request: web.Request) -> web.Response:
+    return web.json_response(request.app[HUB].state(), headers={'Cache-Control': 'no-store'})
+
+
+async def _snapshot(request: web.Request) -> web.Response:
+    jpeg = await request.app[HUB].latest_jpeg()
+    if jpeg is None:
+        raise web.HTTPServiceUnavailable(text='no camera frame received yet\n')
+    return web.Response(body=jpeg, content_type='image/jpeg',
+                        headers={'Cache-Control': 'no-store'})
+
+
+async def _stream(request: web.Request) -> web.StreamResponse:
+    hub = request.app[HUB]
+    response = web.StreamResponse(headers={
+        'Content-Type': f'multipart/x-mixed-replace;boundary={BOUNDARY}',
+        'Cache-Control': 'no-store',
+    })
+    await response.prepare(request)
+    hub.viewers += 1
+    try:
+        seq = 0
+        # A client that goes away cancels this task (handler_cancellation) or makes a write
+        # raise; either way the finally below runs and nothing is left waiting.
+        while (frame := await hub.next_jpeg(seq)) is not None:
+            seq, jpeg = frame
+            await response.write(
+                f'--{BOUNDARY}\r\nContent-Type: image/jpeg\r\n'
+                f'Content-Length: {len(jpeg)}\r\n\r\n'.encode('ascii') + jpeg + b'\r\n')
+    except ConnectionError:
+        pass
+    finally:
+        hub.viewers -= 1
+    return response
+
+
+async def _attach(app: web.Application) -> None:
+    app[HUB].attach(asyncio.get_running_loop())
+
+
+async def _close(app: web.Application) -> None:
+    app[HUB].close()
+
+
+def create_app(hub: FrameHub) -> web.Application:
+    """Return the viewer's aiohttp application serving ``hub``; other paths answer 404."""
+    app = web.Application()
+    app[HUB] = hub
+    app.add_routes([
+        web.get('/', _index),
+        web.get('/state', _state),
+        web.get('/stream', _stream),
+        web.get('/snapshot', _snapshot),
+    ])
+    app.on_startup.append(_attach)
+    app.on_shutdown.append(_close)
+    return app
+
+
+class ViewerServer:
+    """Runs :func:`create_app` on its own thread and event loop, so ROS callbacks never wait."""
+
+    def __init__(self, hub: FrameHub, address: str = '127.0.0.1', port: int = 8080) -> None:
+        self.hub = hub
+        self.address = address
+        self.port = port  # the bound port once started (useful with port 0)
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._thread: threading.Thread | None = None
+        self._runner: web.AppRunner | None = None
+
+    @property
+    def url(self) -> str:
+        """Address of the page, for people and tests."""
+        host = f'[{self.address}]' if ':' in self.address else self.address
+        return f'http://{host}:{self.port}/'
+
+    def start(self, timeout: float = 10.0) -> None:
+        """Bind and start serving; raises ``OSError`` when the address cannot be bound."""
+        self._loop = asyncio.new_event_loop()
+        self._thread = threading.Thread(target=self._loop.run_forever, name='viewer-http',
+                                        daemon=True)
+        self._thread.start()
+        try:
+            asyncio.run_coroutine_threadsafe(self._serve(), self._loop).result(timeout)
+        except BaseException:
+            self.stop()
+            raise
+
+    async def _serve(self) -> None:
+        # handler_cancellation: a stream whose client disconnects is cancelled at once,
+        # even while it waits for the next frame. access_log off: one line per request and
+        # per /state poll would flood the terminal.
+        self._runner = web.AppRunner(create_app(self.hub), handler_cancellation=True,
+                                     access_log=None, shutdown_timeout=2.0)
+        await self._runner.setup()
+        await web.TCPSite(self._runner, self.address, self.port).start()
+        self.port = self._runner.addresses[0][1]
+
+    def stop(self, timeout: float = 10.0) -> None:
+        """End every stream, close the socket and join the server thread (idempotent)."""
+        if self._loop is None:
+            return
+        if self._runner is not None:
+            asyncio.run_coroutine_threadsafe(self._runner.cleanup(), self._loop).result(timeout)
+            self._runner = None
+        # The JPEG encoder threads of run_in_executor: let a running encode finish.
+        asyncio.run_coroutine_threadsafe(
+            self._loop.shutdown_default_executor(), self._loop).result(timeout)
+        self._loop.call_soon_threadsafe(self._loop.stop)
+        self._thread.join(timeout)
+        self._loop.close()
+        self._loop = None

@@ -1,0 +1,114 @@
+"""The viewer node in a ROS graph, fed by fake publishers of the contract's topics."""
+
+import json
+import urllib.request
+
+from conftest import wait_for
+import cv2
+from geometry_msgs.msg import PointStamped
+import numpy as np
+import pytest
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import Image, JointState
+from ur_rg2_vision.viewer_node import ViewerNode, image_to_rgb
+
+ARM = ['shoulder_pan_joint', 'shoulder_lift_joint', 'elbow_joint', 'wrist_1_joint',
+       'wrist_2_joint', 'wrist_3_joint']
+
+
+def fetch(url: str) -> bytes:
+    with urllib.request.urlopen(url, timeout=10) as response:
+        return response.read()
+
+
+def state(viewer: ViewerNode) -> dict:
+    return json.loads(fetch(viewer.url + 'state'))
+
+
+def image_msg(rgb: np.ndarray, encoding: str = 'rgb8', pad: int = 0) -> Image:
+    """Return ``rgb`` as an Image message, optionally with ``pad`` bytes after each row."""
+    height, width, _ = rgb.shape
+    rows = np.zeros((height, width * 3 + pad), np.uint8)
+    rows[:, :width * 3] = (rgb if encoding == 'rgb8' else rgb[..., ::-1]).reshape(height, -1)
+    return Image(height=height, width=width, encoding=encoding, step=width * 3 + pad,
+                 data=rows.tobytes())
+
+
+def test_image_to_rgb_handles_bgr_and_row_padding():
+    rgb = np.random.default_rng(1).integers(0, 256, (4, 5, 3), np.uint8)
+    assert np.array_equal(image_to_rgb(image_msg(rgb, 'rgb8', pad=3)), rgb)
+    assert np.array_equal(image_to_rgb(image_msg(rgb, 'bgr8')), rgb)
+    with pytest.raises(ValueError, match='mono8'):
+        image_to_rgb(Image(height=1, width=1, encoding='mono8', step=1, data=b'\0'))
+
+
+def test_viewer_serves_what_the_topics_say(ros_graph):
+    viewer = ros_graph.add(ViewerNode(context=ros_graph.context, parameter_overrides=[
+        Parameter('port', value=0)]))
+    assert viewer.get_name() == 'ur_rg2_viewer'
+    assert viewer.url.startswith('http://127.0.0.1:')
+    fake = ros_graph.node('fake_graph')
+    images = fake.create_publisher(Image, 'ball/image', 10)
+    joints = fake.create_publisher(JointState, 'joint_states', 10)
+    ball = fake.create_publisher(PointStamped, 'ball/position', 10)
+    wait_for(lambda: images.get_subscription_count() and joints.get_subscription_count()
+             and ball.get_subscription_count(), 10, 'the viewer to subscribe')
+
+    frame = np.zeros((60, 80, 3), np.uint8)
+    frame[:, :40] = (255, 0, 0)  # left half red, as RGB
+
+    def published_frame_arrived():
+        images.publish(image_msg(frame))
+        return state(viewer)['camera']['frames'] > 0
+
+    wait_for(published_frame_arrived, 10, 'a frame to reach the viewer')
+    snapshot = cv2.imdecode(np.frombuffer(fetch(viewer.url + 'snapshot'), np.uint8),
+                            cv2.IMREAD_COLOR)
+    assert snapshot.shape == (60, 80, 3)
+    assert snapshot[30, 10, 2] > 200 and snapshot[30, 10, 0] < 50  # red (BGR) on the left
+    assert snapshot[30, 70].max() < 50
+
+    positions = [0.5, -1.0, 0.0, 0.0, 0.0, 3.14159, 0.02, 0.02]
+    names = ARM + ['rg2_left_finger_joint', 'rg2_right_finger_joint']
+
+    def joints_shown():
+        joints.publish(JointState(name=names, position=positions))
+        return state(viewer).get('joints')
+
+    shown = wait_for(joints_shown, 10, 'joint angles in /state')
+    assert [j['name'] for j in shown] == ARM
+    assert [j['deg'] for j in shown] == pytest.approx([28.648, -57.296, 0, 0, 0, 180], abs=1e-3)
+    assert state(viewer)['gripper']['opening_mm'] == pytest.approx(40.0)
+
+    point = PointStamped()
+    point.header.frame_id = 'camera_color_optical_frame'
+    point.point.x, point.point.y, point.point.z = 0.1, 0.2, 1.5
+
+    def ball_shown():
+        ball.publish(point)
+        return state(viewer).get('ball')
+
+    assert wait_for(ball_shown, 10, 'the ball in /state') == {
+        'frame_id': 'camera_color_optical_frame', 'x': 0.1, 'y': 0.2, 'z': 1.5}
+
+
+def test_image_topic_parameter_selects_the_raw_camera(ros_graph):
+    viewer = ros_graph.add(ViewerNode(context=ros_graph.context, parameter_overrides=[
+        Parameter('port', value=0), Parameter('image_topic', value='camera/color/image_raw')]))
+    fake = ros_graph.node('fake_camera')
+    raw = fake.create_publisher(Image, 'camera/color/image_raw', 10)
+    wait_for(raw.get_subscription_count, 10, 'the viewer to subscribe to the raw camera')
+
+    def frame_arrived():
+        raw.publish(image_msg(np.full((8, 8, 3), 128, np.uint8)))
+        return state(viewer)['camera']['width'] == 8
+
+    wait_for(frame_arrived, 10, 'a raw camera frame to reach the viewer')
+
+
+def test_busy_port_fails_clearly(ros_graph):
+    first = ros_graph.add(ViewerNode(context=ros_graph.context, parameter_overrides=[
+        Parameter('port', value=0)]))
+    port = int(first.url.rsplit(':', 1)[1].strip('/'))
+    with pytest.raises(OSError):
+        ViewerNode(context=ros_graph.context, parameter_overrides=[Parameter('port', value=port)])

@@ -1,3 +1,5 @@
+"""Install the ur_rg2_teleop ament_python package."""
+
 from setuptools import find_packages, setup
 
 package_name = 'ur_rg2_teleop'

@@ -228,6 +228,10 @@ class SimWorld:
         self._p.resetBasePositionAndOrientation(self.ball, list(position), [0, 0, 0, 1])
         self._p.resetBaseVelocity(self.ball, [0, 0, 0], [0, 0, 0])
 
+    def set_ball_color(self, rgba: Sequence[float]) -> None:
+        """Repaint the ball."""
+        self._p.changeVisualShape(self.ball, -1, rgbaColor=list(rgba))
+
     def inverse_kinematics(self, position: Sequence[float],
                            orientation: Sequence[float] | None = None) -> dict[str, float]:
         """Return arm joint positions that put the gripper's TCP at a world pose."""

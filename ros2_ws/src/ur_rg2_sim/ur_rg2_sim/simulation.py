@@ -1,0 +1,216 @@
+"""The simulation thread: steps the world, keeps simulation time, paces it, schedules outputs.
+
+Plain Python, no ROS: outputs go to callbacks. pybullet is not thread-safe, so every access to
+the world from another thread goes through :meth:`SimulationLoop.call`, which runs the function
+on this thread between two physics steps and returns a ``concurrent.futures.Future``.
+"""
+
+from concurrent.futures import Future
+from dataclasses import dataclass
+import queue
+import threading
+import time
+from typing import Callable, Optional, Protocol
+
+from ur_rg2_sim.camera import Camera, Frame
+from ur_rg2_sim.world import JointStateSample, SimWorld
+
+NS = 1_000_000_000
+# The simulation may fall this far behind the wall clock (a slow render, a loaded machine)
+# before it stops trying to catch up, rather than rushing through a burst of steps.
+_MAX_LAG = 0.25  # s
+# /clock is published at this rate of simulation time at least (the contract's minimum).
+CLOCK_RATE = 100.0
+
+
+class Outputs(Protocol):
+    """Where the loop sends what it produces; called on the simulation thread."""
+
+    def clock(self, stamp_ns: int) -> None:
+        """Publish the simulation time."""
+
+    def joint_states(self, stamp_ns: int, sample: JointStateSample) -> None:
+        """Publish one joint state sample."""
+
+    def frame(self, stamp_ns: int, camera: Camera, frame: Frame) -> None:
+        """Publish one RGB-D frame of ``camera``."""
+
+
+@dataclass
+class Schedule:
+    """Output rates (Hz of simulation time) and pacing; 0 turns an output or pacing off."""
+
+    joint_state_rate: float = 100.0
+    camera_rate: float = 30.0
+    real_time_factor: float = 1.0
+
+
+@dataclass
+class _Waiter:
+    settled: Callable[[SimWorld], bool]
+    deadline_ns: int
+    hold_ns: int
+    future: Future
+    since_ns: Optional[int] = None
+
+
+class SimulationLoop:
+    """Runs ``world`` on its own thread until :meth:`stop`."""
+
+    def __init__(self, world: SimWorld, outputs: Outputs, schedule: Schedule,
+                 camera: Optional[Camera] = None) -> None:
+        self.world = world
+        self.outputs = outputs
+        self.schedule = schedule
+        self.camera = camera
+        self.step_ns = round(world.dt * NS)
+        self.sim_time_ns = 0
+        self.error: Optional[BaseException] = None
+        self._calls: queue.SimpleQueue = queue.SimpleQueue()
+        self._waiters: list[_Waiter] = []
+        self._stop = threading.Event()
+        self._finished = threading.Event()
+        self._thread = threading.Thread(target=self._run, name='simulation', daemon=True)
+        self._next_clock = self._next_joint_states = self._next_frame = 0
+        self._pace_origin: Optional[tuple[float, int]] = None
+
+    # -- any thread ---------------------------------------------------------------------------
+
+    def start(self) -> None:
+        """Start the simulation thread."""
+        self._thread.start()
+
+    def stop(self, timeout: float = 2.0) -> None:
+        """Stop the simulation thread and wait for it (up to ``timeout`` seconds)."""
+        self._stop.set()
+        if self._thread.is_alive() and self._thread is not threading.current_thread():
+            self._thread.join(timeout)
+
+    @property
+    def running(self) -> bool:
+        """Return whether the simulation thread is alive."""
+        return self._thread.is_alive()
+
+    def call(self, function: Callable[[SimWorld], object]) -> Future:
+        """Run ``function(world)`` on the simulation thread before the next step."""
+        future: Future = Future()
+        self._calls.put((function, future))
+        if self._finished.is_set():
+            self._fail_pending(RuntimeError('the simulation is not running'))
+        return future
+
+    def wait_until(self, action: Callable[[SimWorld], object],
+                   settled: Callable[[SimWorld], bool], timeout_s: float,
+                   hold_s: float = 0.0) -> Future:
+        """Run ``action``, then resolve True once ``settled`` has held for ``hold_s``.
+
+        Times are simulation time; the future resolves False after ``timeout_s``.
+        """
+        result: Future = Future()
+
+        def start(world: SimWorld) -> None:
+            action(world)
+            self._waiters.append(_Waiter(settled, self.sim_time_ns + round(timeout_s * NS),
+                                         round(hold_s * NS), result))
+
+        started = self.call(start)
+        started.add_done_callback(
+            lambda f: f.exception() is not None and result.set_exception(f.exception()))
+        return result
+
+    def reschedule(self, schedule: Schedule, camera: Optional[Camera]) -> Future:
+        """Change rates, pacing or camera from the next step on."""
+        def apply(world: SimWorld) -> None:
+            self.schedule = schedule
+            self.camera = camera
+            self._next_joint_states = self._next_frame = self.sim_time_ns
+            self._pace_origin = None
+        return self.call(apply)
+
+    # -- simulation thread --------------------------------------------------------------------
+
+    def _run(self) -> None:
+        try:
+            while not self._stop.is_set():
+                self._run_calls()
+                self.world.step()
+                self.sim_time_ns += self.step_ns
+                self._check_waiters()
+                self._publish_due()
+                self._pace()
+        except BaseException as error:  # noqa: B036 - reported to the node, which exits
+            self.error = error
+        finally:
+            self._finished.set()
+            self._fail_pending(RuntimeError('the simulation stopped'))
+
+    def _run_calls(self) -> None:
+        while not self._calls.empty():
+            function, future = self._calls.get_nowait()
+            if future.set_running_or_notify_cancel():
+                try:
+                    future.set_result(function(self.world))
+                except Exception as error:  # noqa: BLE001 - handed to the caller
+                    future.set_exception(error)
+
+    def _check_waiters(self) -> None:
+        if not self._waiters:
+            return
+        now = self.sim_time_ns
+        for waiter in list(self._waiters):
+            if waiter.settled(self.world):
+                waiter.since_ns = now if waiter.since_ns is None else waiter.since_ns
+                done = now - waiter.since_ns >= waiter.hold_ns
+                result = True
+            else:
+                waiter.since_ns = None
+                done = now >= waiter.deadline_ns
+                result = False
+            if done:
+                self._waiters.remove(waiter)
+                waiter.future.set_result(result)
+
+    def _publish_due(self) -> None:
+        now = self.sim_time_ns
+        schedule = self.schedule
+        if now >= self._next_clock:
+            self.outputs.clock(now)
+            self._next_clock = _next_due(self._next_clock, now, CLOCK_RATE)
+        if schedule.joint_state_rate > 0 and now >= self._next_joint_states:
+            self.outputs.joint_states(now, self.world.joint_states())
+            self._next_joint_states = _next_due(self._next_joint_states, now,
+                                                schedule.joint_state_rate)
+        if self.camera is not None and schedule.camera_rate > 0 and now >= self._next_frame:
+            self.outputs.frame(now, self.camera, self.camera.render())
+            self._next_frame = _next_due(self._next_frame, now, schedule.camera_rate)
+
+    def _pace(self) -> None:
+        rtf = self.schedule.real_time_factor
+        if rtf <= 0:
+            return
+        wall = time.monotonic()
+        if self._pace_origin is None:
+            self._pace_origin = (wall, self.sim_time_ns)
+        origin_wall, origin_sim = self._pace_origin
+        delay = origin_wall + (self.sim_time_ns - origin_sim) / NS / rtf - wall
+        if delay > 0:
+            self._stop.wait(delay)
+        elif delay < -_MAX_LAG:
+            self._pace_origin = (wall, self.sim_time_ns)
+
+    def _fail_pending(self, error: Exception) -> None:
+        while not self._calls.empty():
+            _, future = self._calls.get_nowait()
+            if not future.done():
+                future.set_exception(error)
+        while self._waiters:
+            waiter = self._waiters.pop()
+            if not waiter.future.done():
+                waiter.future.set_exception(error)
+
+
+def _next_due(previous_due: int, now: int, rate: float) -> int:
+    """Return the next due time after ``now`` on a fixed grid, skipping missed slots."""
+    period = max(1, round(NS / rate))
+    due = previous_due + period
+    return due if due > now else now + period

@@ -89,3 +89,12 @@ def ros_graph() -> Iterator[RosGraph]:
         yield graph
     finally:
         graph.shutdown()
+
+
+def start_sim(graph: RosGraph, **parameters) -> Node:
+    """Start the simulator node in ``graph`` with parameter overrides (Python values)."""
+    from rclpy.parameter import Parameter
+    from ur_rg2_sim.sim_node import SimNode
+
+    overrides = [Parameter(name, value=value) for name, value in parameters.items()]
+    return graph.add(SimNode(context=graph.context, parameter_overrides=overrides))

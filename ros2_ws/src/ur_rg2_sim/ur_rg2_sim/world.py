@@ -113,6 +113,13 @@ class SimWorld:
         # through the floor instead of fighting it, while it still collides with the ball.
         for link in range(-1, self._p.getNumJoints(self.robot)):
             self._p.setCollisionFilterPair(self.robot, self.floor, link, -1, 0)
+        # The RG2's linkage moves both fingers together: a gear constraint keeps them
+        # symmetric, so a grasped object is centred between them instead of pushed aside.
+        gear = self._p.createConstraint(
+            self.robot, self._link_index['rg2_left_finger'], self.robot,
+            self._link_index['rg2_right_finger'], pybullet.JOINT_GEAR, [0, 1, 0], [0, 0, 0],
+            [0, 0, 0])
+        self._p.changeConstraint(gear, gearRatio=-1, erp=0.2, maxForce=2 * RG2_MAX_FORCE)
         for name in ('rg2_left_finger', 'rg2_right_finger'):
             self._p.changeDynamics(
                 self.robot, self._link_index[name], lateralFriction=_PAD_FRICTION,

@@ -1,0 +1,132 @@
+"""The simulator's plain modules, without ROS: URDF, grasping, camera geometry."""
+
+import math
+
+import numpy as np
+import pybullet
+import pytest
+
+from ur_rg2_sim.camera import Camera, CameraConfig
+from ur_rg2_sim.commands import CommandError, joint_targets
+from ur_rg2_sim.robot_model import ARM_JOINTS, GRIPPER_JOINTS, RG2_MAX_OPENING
+from ur_rg2_sim.world import SimWorld, WorldConfig
+
+GRIPPER_DOWN = pybullet.getQuaternionFromEuler([math.pi, 0, 0])
+
+
+@pytest.fixture
+def world():
+    sim = SimWorld(WorldConfig())
+    try:
+        yield sim
+    finally:
+        sim.close()
+
+
+def run(world: SimWorld, seconds: float) -> None:
+    for _ in range(round(seconds / world.dt)):
+        world.step()
+
+
+def move_tcp(world: SimWorld, position, seconds: float = 2.5) -> None:
+    world.set_arm_targets(world.inverse_kinematics(position, GRIPPER_DOWN))
+    run(world, seconds)
+
+
+@pytest.mark.parametrize('model', ['ur5', 'ur3'])
+def test_models_load_with_real_kinematics(model):
+    sim = SimWorld(WorldConfig(robot_model=model))
+    try:
+        assert sim.joint_names == ARM_JOINTS + GRIPPER_JOINTS
+        # UR zero pose: the arm stretched along +x; its reach is the UR5's 0.817 m or the
+        # UR3's 0.457 m from the base axis to the wrist.
+        flange = sim.link_pose('tool0')[0]
+        expected_reach = {'ur5': 0.425 + 0.39225, 'ur3': 0.24365 + 0.21325}[model]
+        assert flange[0] == pytest.approx(expected_reach, abs=1e-3)
+    finally:
+        sim.close()
+
+
+def test_gripper_opens_to_the_datasheet_stroke(world):
+    world.close_gripper()
+    run(world, 2.5)
+    assert world.gripper_opening() == pytest.approx(0.0, abs=1e-3)
+    assert not world.gripper_holds_object()
+    world.open_gripper()
+    run(world, 2.5)
+    assert world.gripper_opening() == pytest.approx(RG2_MAX_OPENING, abs=1e-3)
+
+
+def test_grasped_ball_is_lifted_and_held_at_full_speed(world):
+    ball = np.array(world.body_position(world.ball))
+    move_tcp(world, ball + [0, 0, 0.15])
+    move_tcp(world, ball)
+    world.close_gripper()
+    run(world, 1.5)
+    assert world.gripper_holds_object()
+    assert world.gripper_opening() == pytest.approx(2 * world.config.ball_radius, abs=0.005)
+
+    move_tcp(world, ball + [0, 0, 0.3])
+    assert world.body_position(world.ball)[2] > ball[2] + 0.25
+
+    # Swing the shoulder half a turn each way at its velocity limit, then fold the elbow.
+    limit = world.limits['shoulder_pan_joint'].velocity
+    peak_speed = 0.0
+    for pan, elbow in ((math.pi / 2, 0.0), (-math.pi, -0.5)):
+        world.jog_arm({'shoulder_pan_joint': pan, 'elbow_joint': elbow})
+        for _ in range(round(2.0 / world.dt)):
+            world.step()
+            peak_speed = max(peak_speed, abs(world.joint_states().velocities[0]))
+    assert peak_speed == pytest.approx(limit, rel=0.02)
+    tcp = np.array(world.link_pose()[0])
+    assert np.linalg.norm(np.array(world.body_position(world.ball)) - tcp) < 0.02
+
+
+def test_targets_are_clamped_to_joint_limits(world):
+    applied = world.set_arm_targets({'elbow_joint': 10.0})
+    assert applied['elbow_joint'] == pytest.approx(world.limits['elbow_joint'].upper)
+
+
+@pytest.mark.parametrize('names, positions, reason', [
+    ([], [], 'no joint names'),
+    (['elbow_joint'], [0.1, 0.2], '1 joint names but 2 positions'),
+    (['elbow'], [0.1], "unknown joint 'elbow'"),
+    (['elbow_joint'], [math.nan], 'not a finite number'),
+    (['elbow_joint'], [math.inf], 'not a finite number'),
+    (['elbow_joint', 'elbow_joint'], [0.1, 0.2], 'more than once'),
+])
+def test_malformed_commands_are_rejected_with_a_reason(names, positions, reason):
+    with pytest.raises(CommandError, match=reason):
+        joint_targets(names, positions, ARM_JOINTS)
+
+
+def test_camera_intrinsics_follow_the_field_of_view(world):
+    camera = Camera(world, CameraConfig(width=640, height=480, hfov_deg=57.0))
+    fx = camera.k[0, 0]
+    assert 2 * math.degrees(math.atan(320 / fx)) == pytest.approx(57.0)
+    assert camera.k[1, 1] == fx
+    assert (camera.k[0, 2], camera.k[1, 2]) == (319.5, 239.5)
+
+
+def test_depth_is_registered_to_color(world):
+    camera = Camera(world, CameraConfig())
+    frame = camera.render()
+    centre = world.body_position(world.ball)
+    u, v = (round(c) for c in camera.project(centre))
+    assert frame.rgb[v, u, 0] > 150 and frame.rgb[v, u, 1] < 60, 'ball pixel is not red'
+    # Expected: where the ray through that pixel meets the ball, along the optical axis.
+    ray = np.array([(u - camera.k[0, 2]) / camera.k[0, 0], (v - camera.k[1, 2]) / camera.k[1, 1],
+                    1.0])
+    c = camera.world_to_optical(centre)
+    radius = world.config.ball_radius
+    a, b, cc = ray @ ray, -2 * ray @ c, c @ c - radius ** 2
+    t = (-b - math.sqrt(b * b - 4 * a * cc)) / (2 * a)
+    assert frame.depth[v, u] == pytest.approx(t, abs=0.01)
+
+
+def test_depth_without_return_is_positive_infinity(world):
+    camera = Camera(world, CameraConfig(width=64, height=48, position=(-1.0, 0.0, 0.5),
+                                        look_at=(-2.0, 0.0, 0.5)))
+    depth = camera.render().depth
+    assert np.isposinf(depth[:20]).all(), 'nothing above the horizon: REP 118 +inf'
+    assert np.isfinite(depth[-10:]).all(), 'the floor below the horizon'

@@ -5,6 +5,7 @@ elsewhere, without them, these tests are skipped with the reason.
 """
 
 from collections.abc import Iterator
+import math
 import os
 import shutil
 import subprocess
@@ -19,13 +20,12 @@ from selenium import webdriver
 from selenium.common.exceptions import WebDriverException
 from selenium.webdriver.chrome.service import Service
 from selenium.webdriver.common.by import By
-from sensor_msgs.msg import Image, JointState
+from sensor_msgs.msg import JointState
+from ur_rg2_sim.sim_node import SimNode
 from ur_rg2_vision.viewer_node import ViewerNode
 
 CHROMIUM = '/usr/bin/chromium'
 CHROMEDRIVER = '/usr/bin/chromedriver'
-ARM = ['shoulder_pan_joint', 'shoulder_lift_joint', 'elbow_joint', 'wrist_1_joint',
-       'wrist_2_joint', 'wrist_3_joint']
 
 
 def ensure_chromium() -> None:
@@ -52,7 +52,7 @@ def browser() -> Iterator[webdriver.Chrome]:
         for flag in ('--headless', '--no-sandbox', '--disable-gpu', '--disable-quic',
                      '--no-first-run', '--disable-background-networking',
                      '--disable-component-update', '--disable-sync', '--disable-dev-shm-usage',
-                     '--window-size=1100,640', f'--user-data-dir={profile}'):
+                     '--window-size=1080,760', f'--user-data-dir={profile}'):
             options.add_argument(flag)
         # An explicit driver path: selenium then never runs Selenium Manager (no download).
         driver = webdriver.Chrome(options=options, service=Service(CHROMEDRIVER))
@@ -80,47 +80,32 @@ def shown_angle(driver: webdriver.Chrome, joint: str) -> str | None:
     return cells[0].text if cells else None
 
 
-def assert_stream_is_live(driver: webdriver.Chrome, change) -> None:
-    """Assert the page shows non-blank frames that change after ``change()`` is called."""
-    def non_blank() -> list[np.ndarray]:
-        frame = shown_frame(driver)
-        return [frame] if frame is not None and frame.std() > 10 else []
-
-    [first] = wait_for(non_blank, 20, 'a non-blank frame in the page')
-
-    def changed() -> bool:
-        change()
-        return any(np.abs(frame.astype(int) - first.astype(int)).mean() > 2
-                   for frame in non_blank())
-
-    wait_for(changed, 20, 'the frame shown in the page to change', interval=0.1)
+def non_blank_frame(driver: webdriver.Chrome) -> list[np.ndarray]:
+    """Return ``[frame]`` when the page shows a frame with some contrast, else ``[]``."""
+    frame = shown_frame(driver)
+    return [frame] if frame is not None and frame.std() > 10 else []
 
 
-def test_page_shows_live_stream_and_joint_angles(ros_graph, browser):
+def test_page_follows_the_simulator(ros_graph, browser):
+    ros_graph.add(SimNode(context=ros_graph.context, parameter_overrides=[
+        Parameter('camera_width', value=320), Parameter('camera_height', value=240)]))
     viewer = ros_graph.add(ViewerNode(context=ros_graph.context, parameter_overrides=[
-        Parameter('port', value=0)]))
-    fake = ros_graph.node('fake_graph')
-    images = fake.create_publisher(Image, 'ball/image', 10)
-    joints = fake.create_publisher(JointState, 'joint_states', 10)
-    wait_for(lambda: images.get_subscription_count() and joints.get_subscription_count(), 10,
-             'the viewer to subscribe')
-    ticks = [0]
+        Parameter('port', value=0), Parameter('image_topic', value='camera/color/image_raw')]))
+    jog = ros_graph.node('jogger').create_publisher(JointState, 'joint_jog', 10)
 
-    def publish(pan: float) -> None:
-        # A white square that moves one step per call on a grey ramp.
-        ticks[0] += 1
-        frame = np.tile(np.linspace(40, 120, 320, dtype=np.uint8)[None, :, None], (240, 1, 3))
-        x = 10 + ticks[0] * 7 % 260
-        frame[100:150, x:x + 50] = 255
-        images.publish(Image(height=240, width=320, encoding='rgb8', step=960,
-                             data=frame.tobytes()))
-        joints.publish(JointState(name=ARM, position=[pan, 0.0, 0.0, 0.0, 0.0, 0.0]))
-
-    publish(0.5)
     browser.get(viewer.url)
     assert browser.title == 'UR + RG2 live view'
-    wait_for(lambda: (publish(0.5), shown_angle(browser, 'shoulder_pan_joint') == '28.6°')[1],
-             20, 'the page to show 28.6° for shoulder_pan_joint')
-    assert_stream_is_live(browser, lambda: publish(0.5))
-    wait_for(lambda: (publish(-1.0), shown_angle(browser, 'shoulder_pan_joint') == '-57.3°')[1],
-             20, 'the page to follow the joint to -57.3°')
+    wait_for(lambda: shown_angle(browser, 'shoulder_pan_joint') == '0.0°', 60,
+             'the page to show the home pose')
+    [before] = wait_for(lambda: non_blank_frame(browser), 30, 'a non-blank frame in the page')
+    wait_for(jog.get_subscription_count, 10, 'the sim to subscribe to joint_jog')
+
+    jog.publish(JointState(name=['shoulder_pan_joint'], position=[0.6]))
+    wait_for(lambda: abs(float(shown_angle(browser, 'shoulder_pan_joint').rstrip('°'))
+                         - math.degrees(0.6)) < 1.0, 30,
+             'the page to show shoulder_pan_joint at 34.4° after the jog')
+    wait_for(lambda: any(np.abs(after.astype(int) - before.astype(int)).mean() > 2
+                         for after in non_blank_frame(browser)), 30,
+             'the frame shown in the page to change as the arm moves', interval=0.1)
+    if os.environ.get('VIEWER_SCREENSHOT'):  # scripts/viewer-screenshot: the README's picture
+        browser.save_screenshot(os.environ['VIEWER_SCREENSHOT'])

@@ -1,0 +1,1 @@
+"""Bring-up of the node graph: ``scripts/run`` starts it with ``python -m bringup``."""

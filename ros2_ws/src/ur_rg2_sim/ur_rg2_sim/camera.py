@@ -60,7 +60,7 @@ class Camera:
         self.fy = self.fx
         self.cx = (w - 1) / 2
         self.cy = (h - 1) / 2
-        self._rotation = _optical_rotation(config.position, config.look_at)
+        self._rotation = optical_rotation(config.position, config.look_at)
         self._position = np.asarray(config.position, dtype=float)
         vfov = math.degrees(2 * math.atan((h / 2) / self.fy))
         self._view = pybullet.computeViewMatrix(
@@ -125,8 +125,11 @@ class Camera:
         return np.clip(rgb, 0, 255).astype(np.uint8), depth
 
 
-def _optical_rotation(position: Sequence[float], look_at: Sequence[float]) -> np.ndarray:
-    """Return the rotation whose columns are the optical x, y, z axes in the world frame."""
+def optical_rotation(position: Sequence[float], look_at: Sequence[float]) -> np.ndarray:
+    """Return the rotation whose columns are the optical x, y, z axes in the world frame.
+
+    The camera looks from ``position`` at ``look_at`` with no roll (image x horizontal).
+    """
     forward = np.asarray(look_at, dtype=float) - np.asarray(position, dtype=float)
     norm = np.linalg.norm(forward)
     if norm < 1e-9:

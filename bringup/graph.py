@@ -31,17 +31,19 @@ class Node:
 GRAPH: tuple[Node, ...] = (
     Node('sim', 'ur_rg2_sim', 'sim', 'ur_rg2_sim'),
     Node('vision', 'ur_rg2_vision', 'vision', 'ur_rg2_vision'),
+    Node('viewer', 'ur_rg2_vision', 'viewer', 'ur_rg2_viewer'),
     Node('keys', 'ur_rg2_teleop', 'keys', 'ur_rg2_teleop', interactive=True),
 )
 
 USAGE = """\
 usage: scripts/run [--headless] [NAME:=VALUE ...] [NODE:NAME:=VALUE ...] [--ros-args ARGS ...]
 
-Start the UR + RG2 node graph: the simulator (sim) and the ball detector (vision) as separate
-processes and, when standard input is a terminal, the keyboard teleop (keys) in the
-foreground. Quit with p or Ctrl-C in keys; everything stops with it. Without a terminal
-(piped, CI, a service manager) sim and vision run headless until SIGINT or SIGTERM. If any
-process dies, the others are stopped and the exit status is 1.
+Start the UR + RG2 node graph: the simulator (sim), the ball detector (vision) and the
+browser view (viewer: open http://127.0.0.1:8080/) as separate processes and, when standard
+input is a terminal, the keyboard teleop (keys) in the foreground. Quit with p or Ctrl-C in
+keys; everything stops with it. Without a terminal (piped, CI, a service manager) sim, vision
+and viewer run headless until SIGINT or SIGTERM. If any process dies, the others are stopped
+and the exit status is 1.
 
 parameters:
   NAME:=VALUE       a ROS parameter for every node; each node takes the ones it declares

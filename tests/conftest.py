@@ -1,10 +1,10 @@
 """Shared fixtures: one rclpy Context per test, on its own DDS domain, spun in the background."""
 
+from collections.abc import Callable, Iterator
 import itertools
 import os
 import threading
 import time
-from typing import Callable, Iterator
 
 import pytest
 

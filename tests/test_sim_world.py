@@ -5,7 +5,6 @@ import math
 import numpy as np
 import pybullet
 import pytest
-
 from ur_rg2_sim.camera import Camera, CameraConfig
 from ur_rg2_sim.commands import CommandError, joint_targets
 from ur_rg2_sim.robot_model import ARM_JOINTS, GRIPPER_JOINTS, RG2_MAX_OPENING

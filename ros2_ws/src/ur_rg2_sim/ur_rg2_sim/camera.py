@@ -7,9 +7,9 @@ numpy and composited under the rendered bodies by depth. Bodies below the floor 
 may pass through it, see world.py) are hidden exactly as a rendered floor would hide them.
 """
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 import math
-from typing import Sequence
 
 import numpy as np
 import pybullet

@@ -1,7 +1,7 @@
 """Validation of joint commands and parameter values. Plain Python, no ROS."""
 
+from collections.abc import Iterable, Sequence
 import math
-from typing import Iterable, Sequence
 
 
 class CommandError(ValueError):

@@ -1,9 +1,10 @@
 """ROS 2 node ``ur_rg2_sim``: wires the pybullet simulation to topics, services, parameters."""
 
+from collections.abc import Sequence
 from concurrent.futures import TimeoutError as FutureTimeout
 from dataclasses import dataclass
 import sys
-from typing import Optional, Sequence
+from typing import Optional
 
 from builtin_interfaces.msg import Time
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
@@ -328,10 +329,10 @@ def _camera_info(camera: Camera, header) -> CameraInfo:
 def main(args: Optional[list[str]] = None) -> int:
     """Run the simulator node until Ctrl-C or SIGTERM."""
     rclpy.init(args=args)
+    executor = MultiThreadedExecutor(num_threads=4)
     node = None
     try:
         node = SimNode()
-        executor = MultiThreadedExecutor(num_threads=4)
         executor.add_node(node)
         while rclpy.ok():
             if node.simulation_error is not None:
@@ -344,7 +345,12 @@ def main(args: Optional[list[str]] = None) -> int:
         return 2
     except (KeyboardInterrupt, ExternalShutdownException):
         return 0
+    except Exception:
+        if rclpy.ok():
+            raise
+        return 0  # a signal arrived during start-up and shut the context down under us
     finally:
+        executor.shutdown()
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()

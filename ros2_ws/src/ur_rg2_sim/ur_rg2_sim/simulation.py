@@ -5,12 +5,13 @@ the world from another thread goes through :meth:`SimulationLoop.call`, which ru
 on this thread between two physics steps and returns a ``concurrent.futures.Future``.
 """
 
+from collections.abc import Callable
 from concurrent.futures import Future
 from dataclasses import dataclass
 import queue
 import threading
 import time
-from typing import Callable, Optional, Protocol
+from typing import Optional, Protocol
 
 from ur_rg2_sim.camera import Camera, Frame
 from ur_rg2_sim.world import JointStateSample, SimWorld

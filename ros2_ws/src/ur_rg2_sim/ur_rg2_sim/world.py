@@ -4,18 +4,25 @@ Everything here runs on one thread (pybullet clients are not thread-safe); the n
 commands from that thread only.
 """
 
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 import functools
 import math
 from pathlib import Path
 import tempfile
-from typing import Iterable, Mapping, Sequence
 
 import pybullet
 
 from ur_rg2_sim.robot_model import (
-    ARM_JOINTS, GRIPPER_JOINTS, joint_limits, JointLimit, RG2_MAX_FINGER_SPEED, RG2_MAX_FORCE,
-    RG2_MAX_OPENING, TCP_LINK, write_robot_urdf,
+    ARM_JOINTS,
+    GRIPPER_JOINTS,
+    RG2_MAX_FINGER_SPEED,
+    RG2_MAX_FORCE,
+    RG2_MAX_OPENING,
+    TCP_LINK,
+    JointLimit,
+    joint_limits,
+    write_robot_urdf,
 )
 
 DEFAULT_BALL_POSITION = (0.45, -0.35, 0.03)

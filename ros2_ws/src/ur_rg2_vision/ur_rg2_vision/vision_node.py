@@ -1,0 +1,325 @@
+"""Node ``ur_rg2_vision``: the ball's 3D position from the RGB-D camera, and frame saving.
+
+ROS wiring only; the work is done by :mod:`ur_rg2_vision.detector` (colour + shape),
+:mod:`ur_rg2_vision.localize` (depth) and :mod:`ur_rg2_vision.frame_store` (PNG files).
+
+Each colour image is searched for the ball and republished annotated on ``ball/image`` at once;
+its depth image (same stamp, before or after it) completes it, and then ``ball/position`` is
+published. A few frames wait for their partner; a colour frame whose depth never comes gets no
+position. Image callbacks run one at a time; ``vision/save_frame`` runs beside them, so a slow
+disk never delays detection.
+"""
+
+from collections import OrderedDict
+from dataclasses import dataclass
+import sys
+import threading
+import time
+
+import cv2
+from geometry_msgs.msg import Point, PointStamped
+import numpy as np
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    SetParametersResult,
+)
+import rclpy
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.logging import get_logger
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import CameraInfo, Image
+from std_msgs.msg import Header
+from std_srvs.srv import Trigger
+
+from ur_rg2_vision.detector import BallDetector, Detection, HsvRange
+from ur_rg2_vision.frame_store import save_frame
+from ur_rg2_vision.localize import BallPosition, locate_ball
+from ur_rg2_vision.ros_image import camera_matrix, image_to_depth, image_to_rgb, rgb_to_image
+
+NODE_NAME = 'ur_rg2_vision'
+
+# Reliable, because across processes best effort loses most 640x480 frames (see the README);
+# a short keep-last queue, because a late frame is worth less than the next one.
+_IMAGE_QOS = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
+_PENDING_FRAMES = 4  # colour frames waiting for their depth (~130 ms at 30 Hz)
+_EARLY_DEPTHS = 4  # depth images that came before their colour image
+_SAVE_WAIT_S = 0.2  # vision/save_frame waits this long for the latest frame's depth
+_WARN_PERIOD_S = 10.0  # a persisting input problem is logged again after this long
+_DRAW_COLOR = (0, 255, 0)
+
+# Red wraps around hue 0: lower hue > upper hue means [lower, 179] + [0, upper].
+_DEFAULT_HSV_LOWER = [170, 100, 40]
+_DEFAULT_HSV_UPPER = [10, 255, 255]
+_DETECTION_PARAMETERS = ('hsv_lower', 'hsv_upper', 'min_radius_px', 'ball_radius')
+
+
+@dataclass
+class _Frame:
+    """A colour frame, what was found in it, and its depth once that has come."""
+
+    header: Header
+    rgb: np.ndarray
+    detections: list[Detection]
+    depth: np.ndarray | None = None
+    autosave: bool = False
+
+
+@dataclass(frozen=True)
+class _DetectionConfig:
+    detector: BallDetector
+    ball_radius: float
+
+
+def _detection_config(values: dict) -> _DetectionConfig:
+    """Return the detection settings for parameter values; ValueError if they are invalid."""
+    color = HsvRange(tuple(int(x) for x in values['hsv_lower']),
+                     tuple(int(x) for x in values['hsv_upper']))
+    if not values['ball_radius'] > 0:
+        raise ValueError(f'ball_radius must be positive, got {values["ball_radius"]}')
+    return _DetectionConfig(BallDetector(color, values['min_radius_px']),
+                            float(values['ball_radius']))
+
+
+def _stamp_key(header: Header) -> tuple[int, int]:
+    return header.stamp.sec, header.stamp.nanosec
+
+
+def _annotate(rgb: np.ndarray, detections: list[Detection]) -> np.ndarray:
+    """Return a copy of ``rgb`` with each detected ball's circle and centre drawn."""
+    image = rgb.copy()
+    for detection in detections:
+        centre = (round(detection.u), round(detection.v))
+        cv2.circle(image, centre, max(1, round(detection.radius)), _DRAW_COLOR, 2,
+                   cv2.LINE_AA)
+        cv2.drawMarker(image, centre, _DRAW_COLOR, cv2.MARKER_CROSS, 8, 1)
+    return image
+
+
+class VisionNode(Node):
+    """Publishes ``ball/position`` and ``ball/image``; serves ``vision/save_frame``."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__(NODE_NAME, **kwargs)
+        self.declare_parameter('frames_dir', 'frames', ParameterDescriptor(
+            description='Directory for saved frames (created when needed), relative to the '
+                        "node's working directory unless absolute."))
+        self.declare_parameter('save_every_n', 0, ParameterDescriptor(
+            description='Save every Nth colour frame (and its depth) automatically; 0: off.',
+            integer_range=[IntegerRange(from_value=0, to_value=1_000_000, step=1)]))
+        self.declare_parameter('hsv_lower', _DEFAULT_HSV_LOWER, ParameterDescriptor(
+            description='Ball colour, lower HSV bound [H 0-179, S 0-255, V 0-255] (OpenCV '
+                        'scale). A lower hue above the upper hue wraps around 0, as red does.'))
+        self.declare_parameter('hsv_upper', _DEFAULT_HSV_UPPER, ParameterDescriptor(
+            description='Ball colour, upper HSV bound [H, S, V]; see hsv_lower.'))
+        self.declare_parameter('min_radius_px', 4.0, ParameterDescriptor(
+            description='Smallest ball radius in pixels that counts as a ball.',
+            floating_point_range=[FloatingPointRange(from_value=1.0, to_value=1000.0)]))
+        self.declare_parameter('ball_radius', 0.03, ParameterDescriptor(
+            description='Ball radius in metres: the depth fit places the centre this far '
+                        'behind the visible surface.',
+            floating_point_range=[FloatingPointRange(from_value=0.001, to_value=10.0)]))
+        self._config = _detection_config(
+            {name: self.get_parameter(name).value for name in _DETECTION_PARAMETERS})
+        self._frames_dir = self.get_parameter('frames_dir').value
+        self._save_every_n = self.get_parameter('save_every_n').value
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+
+        # Image-side state, touched by the image callback group only (one callback at a time).
+        self._camera: tuple[np.ndarray, tuple[int, int]] | None = None  # k, (width, height)
+        self._pending: OrderedDict[tuple[int, int], _Frame] = OrderedDict()
+        self._early_depths: OrderedDict[tuple[int, int], np.ndarray] = OrderedDict()
+        self._color_count = 0
+        # Shared with the save service.
+        self._lock = threading.Lock()
+        self._depth_arrived = threading.Condition(self._lock)
+        self._latest: _Frame | None = None
+        self._warned: dict[str, tuple[str, float]] = {}
+
+        images = MutuallyExclusiveCallbackGroup()
+        self.create_subscription(Image, 'camera/color/image_raw', self._on_color, _IMAGE_QOS,
+                                 callback_group=images)
+        self.create_subscription(Image, 'camera/depth/image_raw', self._on_depth, _IMAGE_QOS,
+                                 callback_group=images)
+        self.create_subscription(CameraInfo, 'camera/color/camera_info', self._on_camera_info,
+                                 _IMAGE_QOS, callback_group=images)
+        self._position_pub = self.create_publisher(PointStamped, 'ball/position', 10)
+        self._image_pub = self.create_publisher(Image, 'ball/image', _IMAGE_QOS)
+        self.create_service(Trigger, 'vision/save_frame', self._on_save_frame,
+                            callback_group=MutuallyExclusiveCallbackGroup())
+
+    # -- parameters ---------------------------------------------------------------------------
+
+    def _on_set_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
+        values = {name: self.get_parameter(name).value for name in _DETECTION_PARAMETERS}
+        values.update({p.name: p.value for p in parameters if p.name in values})
+        try:
+            config = _detection_config(values)
+        except ValueError as error:
+            return SetParametersResult(successful=False, reason=str(error))
+        self._config = config
+        for parameter in parameters:
+            if parameter.name == 'frames_dir':
+                self._frames_dir = parameter.value
+            elif parameter.name == 'save_every_n':
+                self._save_every_n = parameter.value
+        return SetParametersResult(successful=True)
+
+    # -- inputs -------------------------------------------------------------------------------
+
+    def _warn(self, source: str, text: str) -> None:
+        """Log a problem once, and again only if it changes or persists for a while."""
+        now = time.monotonic()
+        last = self._warned.get(source)
+        if last is None or last[0] != text or now - last[1] >= _WARN_PERIOD_S:
+            self._warned[source] = (text, now)
+            self.get_logger().warning(text)
+
+    def _on_camera_info(self, msg: CameraInfo) -> None:
+        try:
+            self._camera = camera_matrix(msg), (msg.width, msg.height)
+        except ValueError as error:
+            self._warn('camera_info', f'camera_info ignored: {error}')
+
+    def _on_color(self, msg: Image) -> None:
+        try:
+            rgb = image_to_rgb(msg)
+        except ValueError as error:
+            self._warn('color', f'colour image ignored: {error}')
+            return
+        config = self._config
+        frame = _Frame(msg.header, rgb, config.detector.detect(rgb))
+        if self._image_pub.get_subscription_count() > 0:
+            self._image_pub.publish(rgb_to_image(_annotate(rgb, frame.detections), msg.header))
+        self._color_count += 1
+        every = self._save_every_n
+        frame.autosave = every > 0 and self._color_count % every == 0
+        with self._lock:
+            self._latest = frame
+        key = _stamp_key(msg.header)
+        self._pending[key] = frame
+        while len(self._pending) > _PENDING_FRAMES:
+            _, stale = self._pending.popitem(last=False)
+            if stale.autosave:  # its depth never came: save the colour alone
+                self._autosave(stale)
+        depth = self._early_depths.pop(key, None)
+        if depth is not None:
+            self._complete(key, depth)
+
+    def _on_depth(self, msg: Image) -> None:
+        try:
+            depth = image_to_depth(msg)
+        except ValueError as error:
+            self._warn('depth', f'depth image ignored: {error}')
+            return
+        key = _stamp_key(msg.header)
+        if key in self._pending:
+            self._complete(key, depth)
+            return
+        self._early_depths[key] = depth
+        while len(self._early_depths) > _EARLY_DEPTHS:
+            self._early_depths.popitem(last=False)
+
+    def _complete(self, key: tuple[int, int], depth: np.ndarray) -> None:
+        """Pair a colour frame with its depth: publish the ball's position, autosave."""
+        frame = self._pending.pop(key)
+        with self._lock:
+            frame.depth = depth
+            self._depth_arrived.notify_all()
+        position = self._locate(frame)
+        if position is not None:
+            self._position_pub.publish(PointStamped(
+                header=frame.header, point=Point(x=position.x, y=position.y, z=position.z)))
+        if frame.autosave:
+            self._autosave(frame)
+
+    def _locate(self, frame: _Frame) -> BallPosition | None:
+        """Return the 3D position of the first detection the depth confirms as a ball."""
+        if not frame.detections:
+            return None
+        height, width = frame.rgb.shape[:2]
+        if self._camera is None:
+            self._warn('locate', 'no camera/color/camera_info yet: no ball/position')
+            return None
+        k, info_size = self._camera
+        if info_size != (width, height):
+            self._warn('locate', f'camera_info is for {info_size[0]}x{info_size[1]}, the colour '
+                       f'image is {width}x{height}: no ball/position')
+            return None
+        if frame.depth.shape != (height, width):
+            self._warn('locate', f'depth image {frame.depth.shape[1]}x{frame.depth.shape[0]} is '
+                       f'not registered to the {width}x{height} colour image: no ball/position')
+            return None
+        config = self._config
+        for detection in frame.detections:
+            position = locate_ball(detection, frame.depth, k, config.ball_radius)
+            if position is not None:
+                return position
+        return None
+
+    # -- saving -------------------------------------------------------------------------------
+
+    def _save(self, frame: _Frame) -> list[str]:
+        stamp = frame.header.stamp
+        return save_frame(self._frames_dir, stamp.sec, stamp.nanosec, frame.rgb, frame.depth)
+
+    def _autosave(self, frame: _Frame) -> None:
+        try:
+            self._save(frame)
+        except OSError as error:
+            self._warn('autosave', f'save_every_n: cannot save to {self._frames_dir!r}: {error}')
+
+    def _on_save_frame(self, request: Trigger.Request, response: Trigger.Response
+                       ) -> Trigger.Response:
+        with self._lock:
+            frame = self._latest
+            if frame is not None:  # its depth is usually a few milliseconds behind
+                self._depth_arrived.wait_for(lambda: frame.depth is not None, _SAVE_WAIT_S)
+        if frame is None:
+            response.success = False
+            response.message = 'no camera frame received yet'
+            return response
+        try:
+            paths = self._save(frame)
+        except OSError as error:
+            response.success = False
+            response.message = f'cannot save to {self._frames_dir!r}: {error}'
+            self.get_logger().warning(f'vision/save_frame: {response.message}')
+            return response
+        response.success = True
+        response.message = ' '.join(paths)
+        if frame.depth is None:
+            response.message += ' (no depth image for this frame)'
+        self.get_logger().info(f'saved {response.message}')
+        return response
+
+
+def main(args: list[str] | None = None) -> int:
+    """Run the node until Ctrl-C / SIGTERM; exit code 1 on invalid parameters."""
+    rclpy.init(args=args)
+    try:
+        node = VisionNode()
+    except (ValueError, ParameterException) as error:
+        get_logger(NODE_NAME).error(f'invalid parameters: {error}')
+        rclpy.try_shutdown()
+        return 1
+    executor = MultiThreadedExecutor(num_threads=2)
+    executor.add_node(node)
+    try:
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

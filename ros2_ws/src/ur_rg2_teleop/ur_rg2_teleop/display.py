@@ -38,8 +38,9 @@ def arm_values(names: Sequence[str], values: Sequence[float]) -> list[float] | N
 
 def format_angles(positions: Sequence[float], step_deg: float) -> str:
     """Return one line with the arm joint ``positions`` (rad) in degrees and the step."""
-    fields = '  '.join(
-        f'{name} {math.degrees(p):+6.1f}' for name, p in zip(SHORT_NAMES, positions, strict=True))
+    # Adding 0.0 turns the -0.0 of a tiny negative angle into 0.0.
+    fields = '  '.join(f'{name} {round(math.degrees(p), 1) + 0.0:+6.1f}'
+                       for name, p in zip(SHORT_NAMES, positions, strict=True))
     return f'{fields}  deg  (step {step_deg:g})'
 
 

@@ -39,6 +39,8 @@ from ur_rg2_teleop.terminal import KeyReader, Stop, raw_mode, stop_on_signals
 USAGE_ERROR = 2
 # How often the key loop looks up from the keyboard to check that ROS is still being spun.
 _SPIN_CHECK_PERIOD = 0.5
+# Every jog is relative, so none may be dropped: room for a burst of pasted or repeated keys.
+_JOG_QUEUE_DEPTH = 100
 
 
 class KeysNode(Node):
@@ -52,7 +54,7 @@ class KeysNode(Node):
             floating_point_range=[FloatingPointRange(
                 from_value=MIN_STEP_DEG, to_value=MAX_STEP_DEG, step=0.0)],
         ))
-        self._jog_publisher = self.create_publisher(JointState, 'joint_jog', 10)
+        self._jog_publisher = self.create_publisher(JointState, 'joint_jog', _JOG_QUEUE_DEPTH)
         self._trigger_clients: dict[str, Client] = {
             name: self.create_client(Trigger, name) for name in SERVICES}
         self.create_subscription(

@@ -1,0 +1,169 @@
+"""The keys node in-process against stub publishers and services (no terminal, no sim)."""
+
+import io
+import math
+import threading
+import time
+
+from conftest import wait_for
+import pytest
+from rclpy.exceptions import InvalidParameterValueException
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
+from ur_rg2_teleop.display import Console
+from ur_rg2_teleop.keymap import JOINT_NAMES
+from ur_rg2_teleop.keys_node import KeysNode
+
+
+class Keys:
+    """A KeysNode in the test graph, its console output, and what it publishes on joint_jog."""
+
+    def __init__(self, graph, namespace: str = '', **kwargs) -> None:
+        self.output = io.StringIO()
+        self.node = graph.add(KeysNode(Console(self.output), context=graph.context,
+                                       namespace=namespace, **kwargs))
+        self.jogs: list[JointState] = []
+        listener = graph.node('jog_listener', namespace=namespace)
+        listener.create_subscription(JointState, 'joint_jog', self.jogs.append, 100)
+        wait_for(lambda: self.node.count_subscribers('joint_jog') > 0, 10.0, 'jog subscriber')
+
+    def press(self, keys: str) -> None:
+        """Hand ``keys`` to the node one by one, as the key loop does."""
+        for key in keys:
+            assert self.node.handle_key(key)
+
+    def lines(self) -> list[str]:
+        """Return what the node has shown so far, line by line."""
+        return self.output.getvalue().splitlines()
+
+
+def stub_service(graph, name: str, success: bool, message: str, delay: float = 0.0):
+    """Serve a Trigger ``name`` answering (success, message) after ``delay`` s."""
+    def serve(request, response):
+        time.sleep(delay)
+        response.success, response.message = success, message
+        return response
+
+    graph.node(f'stub_{name.replace("/", "_")}').create_service(Trigger, name, serve)
+
+
+def test_jog_keys_publish_one_relative_move_per_key_in_radians(ros_graph):
+    keys = Keys(ros_graph)
+    keys.press('qWx')
+    wait_for(lambda: len(keys.jogs) == 3, 10.0, 'three joint_jog messages')
+    step = math.radians(5.0)
+    assert [(list(m.name), list(m.position)) for m in keys.jogs] == [
+        (['shoulder_pan_joint'], [pytest.approx(step)]),
+        (['shoulder_pan_joint'], [pytest.approx(-step)]),
+        (['elbow_joint'], [pytest.approx(-step)]),
+    ]
+
+
+def test_every_jog_key_moves_its_joint(ros_graph):
+    keys = Keys(ros_graph)
+    keys.press('qwaszxerdfcv')
+    wait_for(lambda: len(keys.jogs) == 12, 10.0, 'twelve joint_jog messages')
+    expected = [(name, sign) for name in JOINT_NAMES for sign in (1, -1)]
+    assert [(m.name[0], math.copysign(1, m.position[0])) for m in keys.jogs] == expected
+
+
+def test_step_keys_change_the_step_parameter_within_bounds(ros_graph):
+    keys = Keys(ros_graph, parameter_overrides=[Parameter('step_deg', value=2.5)])
+    keys.press('q+q')
+    assert keys.node.get_parameter('step_deg').value == 5.0
+    keys.press('-' * 10 + 'w' + '+' * 10 + 'w')
+    wait_for(lambda: len(keys.jogs) == 4, 10.0, 'four joint_jog messages')
+    assert [math.degrees(m.position[0]) for m in keys.jogs] == [
+        pytest.approx(2.5), pytest.approx(5.0), pytest.approx(-0.5), pytest.approx(-45.0)]
+    assert 'step 45 deg' in keys.lines()
+
+
+def test_out_of_range_step_is_refused_at_start(ros_graph):
+    with pytest.raises(InvalidParameterValueException):
+        KeysNode(Console(io.StringIO()), context=ros_graph.context,
+                 parameter_overrides=[Parameter('step_deg', value=90.0)])
+
+
+def test_unknown_key_says_so_on_one_line(ros_graph):
+    keys = Keys(ros_graph)
+    keys.press('k')
+    keys.node.handle_key('\x1b[A')
+    assert keys.lines() == ["'k' has no function (h: help)", 'Up has no function (h: help)']
+    assert not keys.jogs
+
+
+def test_quit_keys_end_the_loop(ros_graph):
+    keys = Keys(ros_graph)
+    assert not keys.node.handle_key('p')
+    assert not keys.node.handle_key('P')
+    assert not keys.node.handle_key('\x03')
+
+
+def test_services_are_called_without_blocking_and_answer_on_one_line(ros_graph):
+    keys = Keys(ros_graph)
+    stub_service(ros_graph, 'reset', True, 'arm targets\nset to home', delay=1.0)
+    stub_service(ros_graph, 'gripper/close', True, 'closed: nothing grasped')
+    stub_service(ros_graph, 'gripper/open', False, 'fingers blocked')
+    for name in ('reset', 'gripper/close', 'gripper/open'):
+        client = keys.node._trigger_clients[name]  # the node's own view decides availability
+        wait_for(client.service_is_ready, 10.0, f'{name} discovered')
+    started = time.monotonic()
+    keys.press('lty')
+    assert time.monotonic() - started < 0.5, 'the key loop waited for a service'
+    wait_for(lambda: len(keys.lines()) == 3, 10.0, 'three service results')
+    assert sorted(keys.lines()) == [
+        '/gripper/close: done: closed: nothing grasped',
+        '/gripper/open: FAILED: fingers blocked',
+        '/reset: done: arm targets set to home',
+    ]
+
+
+def test_missing_service_is_reported_at_once_on_one_line(ros_graph):
+    keys = Keys(ros_graph, namespace='robot2')
+    keys.press(' t')
+    assert keys.lines() == ['/robot2/vision/save_frame: service not available',
+                            '/robot2/gripper/close: service not available']
+
+
+def test_jog_without_listener_or_joint_states_says_why(ros_graph):
+    keys = KeysNode(Console(out := io.StringIO()), context=ros_graph.context)
+    ros_graph.add(keys)
+    keys.handle_key('q')
+    assert out.getvalue() == '/joint_jog: nobody listens (is the sim running?)\n'
+
+
+def test_angles_are_shown_once_when_the_move_is_over(ros_graph):
+    keys = Keys(ros_graph, namespace='ns')
+    publisher = ros_graph.node('fake_sim', namespace='ns').create_publisher(
+        JointState, 'joint_states', 10)
+    wait_for(lambda: publisher.get_subscription_count() > 0, 10.0, 'joint_states subscriber')
+    stop = threading.Event()
+    state = {'pan': 0.0, 'speed': 0.0}
+
+    def publish():
+        while not stop.wait(0.01):
+            msg = JointState(name=[*JOINT_NAMES, 'rg2_finger_joint'])
+            msg.position = [state['pan'], -1.0, 0.5, 0.0, 0.0, 0.0, 0.02]
+            msg.velocity = [state['speed'], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+            publisher.publish(msg)
+
+    thread = threading.Thread(target=publish)
+    thread.start()
+    try:
+        # The pose is shown once at start-up, when the states first come in.
+        wait_for(lambda: keys.lines(), 10.0, 'the start-up pose')
+        assert keys.lines()[0].startswith('pan   +0.0  lift  -57.3  elbow  +28.6')
+        keys.press('q')
+        state['speed'] = 1.0
+        time.sleep(0.1)
+        assert len(keys.lines()) == 1, 'angles shown while moving'
+        state.update(pan=math.radians(5.0), speed=0.0)
+        wait_for(lambda: len(keys.lines()) == 2, 10.0, 'the angles after the move')
+        assert keys.lines()[1].startswith('pan   +5.0  lift  -57.3')
+        assert keys.lines()[1].endswith('(step 5)')
+        time.sleep(0.2)
+        assert len(keys.lines()) == 2, 'angles shown more than once per move'
+    finally:
+        stop.set()
+        thread.join()

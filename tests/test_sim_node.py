@@ -136,20 +136,20 @@ class CameraModel:
 
 
 def latest_frame(probe: Probe, after_ns: int = 0):
-    """Return a colour image, its depth image and camera_info, all with one stamp."""
+    """Return colour image, depth image, colour and depth camera_info, all with one stamp."""
     def matched():
-        depth = {stamp_ns(m): m for m in probe.messages('camera/depth/image_raw')}
-        info = {stamp_ns(m): m for m in probe.messages('camera/color/camera_info')}
+        others = [{stamp_ns(m): m for m in probe.messages(topic)} for topic in (
+            'camera/depth/image_raw', 'camera/color/camera_info', 'camera/depth/camera_info')]
         for color in reversed(probe.messages('camera/color/image_raw')):
             stamp = stamp_ns(color)
-            if stamp > after_ns and stamp in depth and stamp in info:
-                return color, depth[stamp], info[stamp]
+            if stamp > after_ns and all(stamp in other for other in others):
+                return (color, *(other[stamp] for other in others))
         return None
     return wait_for(matched, 30.0, 'a colour + depth + camera_info frame')
 
 
 def assert_ball_seen_at(probe: Probe, centre, radius: float = 0.03, after_ns: int = 0) -> None:
-    color, depth, info = latest_frame(probe, after_ns)
+    color, depth, info, _ = latest_frame(probe, after_ns)
     camera = CameraModel(probe, info)
     u, v = camera.pixel(centre)
     r, g, b = image_array(color)[v, u]
@@ -242,9 +242,7 @@ def test_gripper_services_report_the_opening(ros_graph):
 def test_camera_images_and_camera_info(ros_graph):
     start_sim(ros_graph)
     probe = Probe(ros_graph)
-    color, depth, info = latest_frame(probe)
-    depth_info = {stamp_ns(m): m for m in probe.messages('camera/depth/camera_info')}
-    assert stamp_ns(color) in depth_info
+    color, depth, info, depth_info = latest_frame(probe)
     assert (color.encoding, color.width, color.height, color.step) == ('rgb8', 640, 480, 1920)
     assert (depth.encoding, depth.width, depth.height, depth.step) == ('32FC1', 640, 480, 2560)
     assert color.header.frame_id == depth.header.frame_id == 'camera_color_optical_frame'
@@ -254,7 +252,7 @@ def test_camera_images_and_camera_info(ros_graph):
     fx = info.k[0]
     assert 2 * math.degrees(math.atan(320 / fx)) == pytest.approx(57.0, abs=1e-6)
     assert list(info.p) == [fx, 0, info.k[2], 0, 0, info.k[4], info.k[5], 0, 0, 0, 1, 0]
-    assert list(depth_info[stamp_ns(color)].k) == list(info.k)
+    assert list(depth_info.k) == list(info.k)
     assert_ball_seen_at(probe, probe.get_parameter('ball_position'))
 
 

@@ -119,11 +119,11 @@ def test_stream_sends_new_frames_encoded_once_for_all_clients(server, monkeypatc
 
     monkeypatch.setattr(viewer_web, 'encode_jpeg', counting_encode)
 
-    async def three_clients():
-        return await asyncio.gather(*(read_stream(server.url + 'stream', 8) for _ in range(3)))
+    async def ten_clients():
+        return await asyncio.gather(*(read_stream(server.url + 'stream', 8) for _ in range(10)))
 
     with Camera(server.hub) as camera:
-        results = asyncio.run(three_clients())
+        results = asyncio.run(ten_clients())
     for content_type, parts in results:
         assert content_type == f'multipart/x-mixed-replace;boundary={viewer_web.BOUNDARY}'
         reds = [int(decode(part)[0, 0, 0]) for part in parts]

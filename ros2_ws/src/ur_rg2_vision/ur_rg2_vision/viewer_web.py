@@ -228,7 +228,7 @@ def create_app(hub: FrameHub) -> web.Application:
     app.add_routes([
         web.get('/', _index),
         web.get('/state', _state),
-        web.get('/stream', _stream),
+        web.get('/stream', _stream, allow_head=False),  # HEAD would hold a stream task open
         web.get('/snapshot', _snapshot),
     ])
     app.on_startup.append(_attach)

@@ -10,7 +10,9 @@ import numpy as np
 import pytest
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import Image, JointState
-from ur_rg2_vision.viewer_node import ViewerNode, image_to_rgb
+from std_msgs.msg import Header
+from ur_rg2_vision.ros_image import rgb_to_image
+from ur_rg2_vision.viewer_node import ViewerNode
 
 ARM = ['shoulder_pan_joint', 'shoulder_lift_joint', 'elbow_joint', 'wrist_1_joint',
        'wrist_2_joint', 'wrist_3_joint']
@@ -23,23 +25,6 @@ def fetch(url: str) -> bytes:
 
 def state(viewer: ViewerNode) -> dict:
     return json.loads(fetch(viewer.url + 'state'))
-
-
-def image_msg(rgb: np.ndarray, encoding: str = 'rgb8', pad: int = 0) -> Image:
-    """Return ``rgb`` as an Image message, optionally with ``pad`` bytes after each row."""
-    height, width, _ = rgb.shape
-    rows = np.zeros((height, width * 3 + pad), np.uint8)
-    rows[:, :width * 3] = (rgb if encoding == 'rgb8' else rgb[..., ::-1]).reshape(height, -1)
-    return Image(height=height, width=width, encoding=encoding, step=width * 3 + pad,
-                 data=rows.tobytes())
-
-
-def test_image_to_rgb_handles_bgr_and_row_padding():
-    rgb = np.random.default_rng(1).integers(0, 256, (4, 5, 3), np.uint8)
-    assert np.array_equal(image_to_rgb(image_msg(rgb, 'rgb8', pad=3)), rgb)
-    assert np.array_equal(image_to_rgb(image_msg(rgb, 'bgr8')), rgb)
-    with pytest.raises(ValueError, match='mono8'):
-        image_to_rgb(Image(height=1, width=1, encoding='mono8', step=1, data=b'\0'))
 
 
 def test_viewer_serves_what_the_topics_say(ros_graph):
@@ -58,7 +43,7 @@ def test_viewer_serves_what_the_topics_say(ros_graph):
     frame[:, :40] = (255, 0, 0)  # left half red, as RGB
 
     def published_frame_arrived():
-        images.publish(image_msg(frame))
+        images.publish(rgb_to_image(frame, Header()))
         return state(viewer)['camera']['frames'] > 0
 
     wait_for(published_frame_arrived, 10, 'a frame to reach the viewer')
@@ -100,7 +85,7 @@ def test_image_topic_parameter_selects_the_raw_camera(ros_graph):
     wait_for(raw.get_subscription_count, 10, 'the viewer to subscribe to the raw camera')
 
     def frame_arrived():
-        raw.publish(image_msg(np.full((8, 8, 3), 128, np.uint8)))
+        raw.publish(rgb_to_image(np.full((8, 8, 3), 128, np.uint8), Header()))
         return state(viewer)['camera']['width'] == 8
 
     wait_for(frame_arrived, 10, 'a raw camera frame to reach the viewer')

@@ -10,7 +10,6 @@ import ipaddress
 import sys
 
 from geometry_msgs.msg import PointStamped
-import numpy as np
 from rcl_interfaces.msg import IntegerRange, ParameterDescriptor
 import rclpy
 from rclpy.executors import ExternalShutdownException
@@ -18,18 +17,10 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image, JointState
 
+from ur_rg2_vision.ros_image import image_to_rgb
 from ur_rg2_vision.viewer_web import FrameHub, ViewerServer, finite_or_none, joint_summary
 
 NODE_NAME = 'ur_rg2_viewer'
-
-
-def image_to_rgb(msg: Image) -> np.ndarray:
-    """Return an ``rgb8``/``bgr8`` image message as an H×W×3 RGB array viewing its data."""
-    if msg.encoding not in ('rgb8', 'bgr8'):
-        raise ValueError(f'unsupported encoding {msg.encoding!r} (need rgb8 or bgr8)')
-    rows = np.frombuffer(msg.data, np.uint8).reshape(msg.height, msg.step)
-    pixels = rows[:, :msg.width * 3].reshape(msg.height, msg.width, 3)
-    return pixels if msg.encoding == 'rgb8' else pixels[..., ::-1]
 
 
 def _is_loopback(address: str) -> bool:
@@ -52,7 +43,7 @@ class ViewerNode(Node):
             description='TCP port to serve on (0: any free port, logged at start-up).',
             read_only=True, integer_range=[IntegerRange(from_value=0, to_value=65535)])).value
         image_topic = self.declare_parameter('image_topic', 'ball/image', ParameterDescriptor(
-            description='rgb8 image topic to stream: the annotated ball/image, or '
+            description='Colour image topic to stream: the annotated ball/image, or '
                         'camera/color/image_raw to watch the raw camera without vision.',
             read_only=True)).value
         quality = self.declare_parameter('jpeg_quality', 80, ParameterDescriptor(

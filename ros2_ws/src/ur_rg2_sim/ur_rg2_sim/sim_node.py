@@ -1,5 +1,6 @@
 """ROS 2 node ``ur_rg2_sim``: wires the pybullet simulation to topics, services, parameters."""
 
+from array import array
 from collections.abc import Sequence
 from concurrent.futures import TimeoutError as FutureTimeout
 from dataclasses import dataclass
@@ -142,6 +143,7 @@ class SimNode(Node):
 
         self._clock_pub = self.create_publisher(Clock, '/clock', 10)
         self._joint_pub = self.create_publisher(JointState, 'joint_states', 10)
+        self._joint_msg = JointState(name=list(self._world.joint_names))
         self._color_pub = self.create_publisher(Image, 'camera/color/image_raw', IMAGE_QOS)
         self._color_info_pub = self.create_publisher(
             CameraInfo, 'camera/color/camera_info', IMAGE_QOS)
@@ -187,12 +189,13 @@ class SimNode(Node):
 
     def joint_states(self, stamp_ns: int, sample: JointStateSample) -> None:
         """Publish ``joint_states``."""
-        msg = JointState()
+        # One message is refilled each time (publish serialises it at once); arrays skip the
+        # per-element checks of list assignment. At real-time factor 0 this runs ~10 kHz.
+        msg = self._joint_msg
         msg.header.stamp = _stamp(stamp_ns)
-        msg.name = list(sample.names)
-        msg.position = sample.positions
-        msg.velocity = sample.velocities
-        msg.effort = sample.efforts
+        msg.position = array('d', sample.positions)
+        msg.velocity = array('d', sample.velocities)
+        msg.effort = array('d', sample.efforts)
         self._joint_pub.publish(msg)
 
     def frame(self, stamp_ns: int, camera: Camera, frame: Frame) -> None:

@@ -74,7 +74,8 @@ class SimWorld:
         self.dt = 1.0 / config.physics_rate
         self.client = pybullet.connect(pybullet.GUI if config.gui else pybullet.DIRECT)
         self._p = _ClientCalls(self.client)
-        self._p.setPhysicsEngineParameter(fixedTimeStep=self.dt, numSolverIterations=50)
+        self._p.setPhysicsEngineParameter(fixedTimeStep=self.dt, numSolverIterations=50,
+                                          solverResidualThreshold=1e-4)
         self._p.setGravity(0, 0, -9.81)
         self.floor = self._create_floor()
         self._model_dir = tempfile.TemporaryDirectory(prefix='ur_rg2_sim-')

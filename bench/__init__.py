@@ -1,0 +1,1 @@
+"""Benchmarks of the node graph; ``python -m bench`` (``make bench``) prints the table."""

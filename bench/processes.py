@@ -1,0 +1,69 @@
+"""Helpers shared by the benchmarks: node processes on a private domain, their CPU and memory."""
+
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+import os
+from pathlib import Path
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+CLK_TCK = os.sysconf('SC_CLK_TCK')
+PAGE_SIZE = os.sysconf('SC_PAGE_SIZE')
+
+
+def bench_env(domain_id: int) -> dict[str, str]:
+    """Return the environment of a benchmark graph: its own DDS domain, localhost only."""
+    return dict(os.environ, ROS_DOMAIN_ID=str(domain_id),
+                ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+
+
+def cpu_seconds(pid: int) -> float:
+    """Return the user + system CPU time of process ``pid`` so far."""
+    fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / CLK_TCK
+
+
+def rss_mb(pid: int) -> float:
+    """Return the resident memory of process ``pid`` in MiB."""
+    pages = int(Path(f'/proc/{pid}/statm').read_text().split()[1])
+    return pages * PAGE_SIZE / 2 ** 20
+
+
+def percentile(values: Sequence[float], q: float) -> float:
+    """Return the ``q``-th percentile of ``values`` (nan when there are none)."""
+    return float(np.percentile(values, q)) if len(values) else float('nan')
+
+
+@contextmanager
+def node_process(executable: str, parameters: dict[str, str], domain_id: int,
+                 ready: str = '', timeout: float = 90.0) -> Iterator[subprocess.Popen]:
+    """Run a node executable of this venv; wait for ``ready`` in its log; stop it with SIGINT."""
+    command = [str(Path(sys.executable).parent / executable), '--ros-args']
+    for name, value in parameters.items():
+        command += ['-p', f'{name}:={value}']
+    with tempfile.TemporaryFile() as log:
+        process = subprocess.Popen(command, env=bench_env(domain_id), stdin=subprocess.DEVNULL,
+                                   stdout=log, stderr=subprocess.STDOUT)
+        try:
+            deadline = time.monotonic() + timeout
+            while ready:
+                log.seek(0)
+                output = log.read().decode(errors='replace')
+                if ready in output:
+                    break
+                if process.poll() is not None or time.monotonic() > deadline:
+                    raise RuntimeError(f'{executable} did not start: {output[-2000:]}')
+                time.sleep(0.1)
+            yield process
+        finally:
+            process.send_signal(signal.SIGINT)
+            try:
+                process.wait(10)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait()

@@ -1,0 +1,153 @@
+"""Benchmark of the simulator: rates across processes, real-time factor, render cost, speed.
+
+The sim runs as its own process with its defaults (real-time factor 1, 640x480 camera at
+30 Hz); this process subscribes like any other node would. Then, headless at real-time factor
+0 with the camera off, it measures physics steps per second. Run alone: python -m bench.sim_bench
+"""
+
+import threading
+import time
+
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import Image, JointState
+
+from bench.processes import cpu_seconds, node_process, percentile, rss_mb
+
+WINDOW_S = 20.0
+WARMUP_S = 3.0
+HEADLESS_WINDOW_S = 10.0
+DOMAIN_ID = 211
+READY = 'simulating'
+
+
+class _Listener:
+    """Counts joint_states and colour images, and tracks /clock, in a node of its own."""
+
+    def __init__(self, domain_id: int) -> None:
+        self.context = Context()
+        self.context.init(domain_id=domain_id)
+        self.node = Node('sim_bench_listener', context=self.context)
+        self.lock = threading.Lock()
+        self.joint_states = 0
+        self.image_stamps: list[int] = []
+        self.sim_ns = 0
+        image_qos = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
+        self.node.create_subscription(JointState, 'joint_states', self._on_joint_states, 100)
+        self.node.create_subscription(Image, 'camera/color/image_raw', self._on_image,
+                                      image_qos)
+        self.node.create_subscription(Clock, '/clock', self._on_clock, 10)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self.thread.start()
+
+    def _on_joint_states(self, msg: JointState) -> None:
+        with self.lock:
+            self.joint_states += 1
+
+    def _on_image(self, msg: Image) -> None:
+        with self.lock:
+            self.image_stamps.append(msg.header.stamp.sec * 10 ** 9 + msg.header.stamp.nanosec)
+
+    def _on_clock(self, msg: Clock) -> None:
+        with self.lock:
+            self.sim_ns = max(self.sim_ns, msg.clock.sec * 10 ** 9 + msg.clock.nanosec)
+
+    def snapshot(self) -> tuple[float, int, int, int]:
+        with self.lock:
+            return time.monotonic(), self.joint_states, len(self.image_stamps), self.sim_ns
+
+    def wait(self, predicate, timeout: float, what: str) -> None:
+        deadline = time.monotonic() + timeout
+        while not predicate():
+            if time.monotonic() > deadline:
+                raise RuntimeError(f'benchmark: no {what} within {timeout:.0f} s')
+            time.sleep(0.05)
+
+    def close(self) -> None:
+        self.executor.shutdown(timeout_sec=5)
+        self.node.destroy_node()
+        self.context.try_shutdown()
+
+
+def _real_time_run() -> list[tuple[str, str, str]]:
+    listener = _Listener(DOMAIN_ID)
+    try:
+        with node_process('sim', {}, DOMAIN_ID, ready=READY) as sim:
+            listener.wait(lambda: listener.snapshot()[2] > 0, 60, 'camera image')
+            time.sleep(WARMUP_S)
+            wall0, joints0, images0, sim0 = listener.snapshot()
+            cpu0 = cpu_seconds(sim.pid)
+            time.sleep(WINDOW_S)
+            wall1, joints1, images1, sim1 = listener.snapshot()
+            cpu1 = cpu_seconds(sim.pid)
+            rss = rss_mb(sim.pid)
+            with listener.lock:
+                stamps = listener.image_stamps[images0:images1]
+    finally:
+        listener.close()
+    wall = wall1 - wall0
+    period_ns = 10 ** 9 / 30.0
+    expected = round((stamps[-1] - stamps[0]) / period_ns) + 1 if stamps else 0
+    lost = max(expected - len(stamps), 0)
+    return [
+        ('sim: joint_states rate (other process)', f'{(joints1 - joints0) / wall:.1f} Hz',
+         '>= 99 Hz'),
+        ('sim: camera rate (other process)', f'{(images1 - images0) / wall:.1f} Hz', '>= 29 Hz'),
+        ('sim: camera frames lost', f'{lost} of {expected} ({100 * lost / max(expected, 1):.2f}%)',
+         '< 1%'),
+        ('sim: real-time factor', f'{(sim1 - sim0) / 1e9 / wall:.3f}', '>= 0.98'),
+        ('sim: CPU (640x480 @ 30 Hz, RTF 1)', f'{100 * (cpu1 - cpu0) / wall:.0f}% of a core', ''),
+        ('sim: RSS', f'{rss:.0f} MB', ''),
+    ]
+
+
+def _render_times() -> list[tuple[str, str, str]]:
+    from ur_rg2_sim.camera import Camera, CameraConfig
+    from ur_rg2_sim.world import SimWorld, WorldConfig
+
+    world = SimWorld(WorldConfig())
+    try:
+        camera = Camera(world, CameraConfig())
+        camera.render()
+        times = []
+        for _ in range(100):
+            start = time.perf_counter()
+            camera.render()
+            times.append(1000 * (time.perf_counter() - start))
+    finally:
+        world.close()
+    return [('sim: render 640x480 RGB-D, ms p50 / p95',
+             f'{percentile(times, 50):.1f} / {percentile(times, 95):.1f}', 'p95 <= 30 ms')]
+
+
+def _headless_speed() -> list[tuple[str, str, str]]:
+    listener = _Listener(DOMAIN_ID + 1)
+    try:
+        parameters = {'real_time_factor': '0.0', 'camera_rate': '0.0'}
+        with node_process('sim', parameters, DOMAIN_ID + 1, ready=READY):
+            listener.wait(lambda: listener.snapshot()[3] > 0, 60, '/clock')
+            time.sleep(1.0)
+            wall0, _, _, sim0 = listener.snapshot()
+            time.sleep(HEADLESS_WINDOW_S)
+            wall1, _, _, sim1 = listener.snapshot()
+    finally:
+        listener.close()
+    steps = (sim1 - sim0) / 1e9 * 240.0
+    return [('sim: physics steps/s (headless, RTF 0, camera off)',
+             f'{steps / (wall1 - wall0):,.0f}', '>= 20,000')]
+
+
+def run() -> list[tuple[str, str, str]]:
+    """Measure the simulator; return (metric, measured, target) rows."""
+    return _real_time_run() + _render_times() + _headless_speed()
+
+
+if __name__ == '__main__':
+    from bench.__main__ import print_table
+
+    print_table(run())

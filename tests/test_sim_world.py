@@ -8,6 +8,7 @@ import pytest
 from ur_rg2_sim.camera import Camera, CameraConfig
 from ur_rg2_sim.commands import CommandError, joint_targets
 from ur_rg2_sim.robot_model import ARM_JOINTS, GRIPPER_JOINTS, RG2_MAX_OPENING
+from ur_rg2_sim.simulation import Schedule, SimulationLoop
 from ur_rg2_sim.world import SimWorld, WorldConfig
 
 GRIPPER_DOWN = pybullet.getQuaternionFromEuler([math.pi, 0, 0])
@@ -129,3 +130,30 @@ def test_depth_without_return_is_positive_infinity(world):
     depth = camera.render().depth
     assert np.isposinf(depth[:20]).all(), 'nothing above the horizon: REP 118 +inf'
     assert np.isfinite(depth[-10:]).all(), 'the floor below the horizon'
+
+
+class _NoOutputs:
+    def clock(self, stamp_ns):
+        pass
+
+    def joint_states(self, stamp_ns, sample):
+        pass
+
+    def frame(self, stamp_ns, camera, frame):
+        pass
+
+
+def test_waiting_gives_up_after_the_simulated_timeout(world):
+    loop = SimulationLoop(world, _NoOutputs(), Schedule(real_time_factor=0.0))
+    loop.start()
+    try:
+        never = loop.wait_until(SimWorld.close_gripper, lambda w: False, timeout_s=0.5)
+        assert never.result(timeout=30) is False
+        assert loop.sim_time_ns >= 0.5e9
+        settles = loop.wait_until(SimWorld.open_gripper, SimWorld.gripper_stopped,
+                                  timeout_s=5.0, hold_s=0.1)
+        assert settles.result(timeout=30) is True
+    finally:
+        loop.stop()
+    with pytest.raises(RuntimeError, match='not running'):
+        loop.call(SimWorld.gripper_opening).result(timeout=5)

@@ -4,6 +4,7 @@ from array import array
 from collections.abc import Sequence
 from concurrent.futures import TimeoutError as FutureTimeout
 from dataclasses import dataclass
+import os
 import sys
 from typing import Optional
 
@@ -136,10 +137,13 @@ class SimNode(Node):
         self.settings = SimSettings.from_values(
             {name: self.get_parameter(name).value for name, *_ in _PARAMETERS})
         s = self.settings
+        gui = s.gui and bool(os.environ.get('DISPLAY') or os.environ.get('WAYLAND_DISPLAY'))
+        if s.gui and not gui:
+            self.get_logger().warning('gui requested but there is no display: running headless')
         self._world = SimWorld(WorldConfig(
             robot_model=s.robot_model, physics_rate=s.physics_rate,
             ball_position=s.ball_position, ball_radius=s.ball_radius, ball_color=s.ball_color,
-            home_position=s.home_position, gui=s.gui))
+            home_position=s.home_position, gui=gui))
 
         self._clock_pub = self.create_publisher(Clock, '/clock', 10)
         self._joint_pub = self.create_publisher(JointState, 'joint_states', 10)

@@ -153,11 +153,11 @@ def test_key_reader_takes_a_lone_escape_as_esc_and_times_out_empty(pty_pair):
         assert reader.read(timeout=1.0) == ['\x1b']
 
 
-def test_key_reader_raises_eof_when_the_terminal_goes_away():
+def test_terminal_going_away_ends_reading_and_needs_no_restore():
     master, slave = os.openpty()
-    os.close(master)
     try:
-        with pytest.raises(EOFError):
+        with pytest.raises(EOFError), raw_mode(slave):
+            os.close(master)
             KeyReader(slave).read(timeout=1.0)
     finally:
         os.close(slave)

@@ -79,12 +79,18 @@ class KeysTerminal:
             self._read(0.05)
         return self.process.returncode
 
+    def hang_up(self) -> None:
+        """Close the terminal's master side, as a terminal window or SSH session closing does."""
+        os.close(self.master)
+        self.master = None
+
     def close(self) -> None:
         """Kill ``keys`` if still running and release the terminal."""
         if self.process.poll() is None:
             self.process.kill()
             self.process.wait()
-        os.close(self.master)
+        if self.master is not None:
+            os.close(self.master)
         os.close(self.slave)
 
 
@@ -215,6 +221,11 @@ def test_signals_exit_0_restoring_the_terminal(keys, signum):
     keys.process.send_signal(signum)
     assert keys.wait() == 0
     assert keys.attributes() == keys.initial
+
+
+def test_closed_terminal_ends_keys_cleanly(keys):
+    keys.hang_up()
+    assert keys.process.wait(timeout=15.0) == 0
 
 
 def test_without_a_terminal_keys_exits_at_once_non_zero(ros_graph):

@@ -2,6 +2,7 @@
 
 from functools import partial
 import math
+import os
 import sys
 import threading
 import time
@@ -159,8 +160,8 @@ def _key_loop(node: KeysNode, reader: KeyReader, spinner: threading.Thread,
 
 def main(args: list[str] | None = None) -> int:
     """Run the teleop in this process's terminal; return the exit code."""
-    stdin = sys.stdin.fileno()
-    if not sys.stdin.isatty():
+    stdin = 0
+    if not os.isatty(stdin):
         print('keys: standard input is not a terminal; keys reads single key presses, so run it '
               'in an interactive terminal (for example: ros2 run ur_rg2_teleop keys)',
               file=sys.stderr)

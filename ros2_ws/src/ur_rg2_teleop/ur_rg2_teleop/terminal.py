@@ -49,7 +49,12 @@ def raw_mode(fd: int) -> Iterator[None]:
     try:
         yield
     finally:
-        termios.tcsetattr(fd, termios.TCSAFLUSH, saved)
+        try:
+            termios.tcsetattr(fd, termios.TCSAFLUSH, saved)
+        except termios.error as error:
+            # A terminal that hung up (closed SSH session) has nothing left to restore.
+            if error.args[0] != errno.EIO:
+                raise
 
 
 @contextmanager

@@ -6,10 +6,11 @@ and the one foreground process, so the supervisor alone decides how the rest sto
 group (a node and anything it spawned) can be signalled at once. The foreground process stays
 in the supervisor's process group so that it can read the terminal.
 
-Stopping escalates per process: SIGINT (what a ROS node handles as a clean shutdown), then
-SIGTERM, then SIGKILL, each after a deadline. A second stop signal while stopping skips to the
-next step at once. Should the supervisor itself be killed outright, the kernel sends its
-children SIGTERM (``PR_SET_PDEATHSIG``), so no node outlives it.
+Stopping escalates: SIGTERM, then SIGKILL after a deadline. A running ROS node (rclpy,
+rclcpp) shuts down on SIGTERM exactly as on SIGINT, but a Python node that is still importing
+would turn SIGINT into a KeyboardInterrupt traceback, which SIGTERM does not. A second stop
+signal while stopping skips to SIGKILL at once. Should the supervisor itself be killed
+outright, the kernel sends its children SIGTERM (``PR_SET_PDEATHSIG``), so no node outlives it.
 """
 
 from __future__ import annotations
@@ -31,10 +32,9 @@ POLL_INTERVAL_S = 0.05
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
 # (signal, seconds to wait for the process to exit after it) in order. The nodes promise a
-# clean exit within 2 s of SIGINT/SIGTERM; the margins cover a loaded machine.
+# clean exit within 2 s of SIGINT/SIGTERM; the margin covers a loaded machine.
 DEFAULT_ESCALATION: tuple[tuple[signal.Signals, float], ...] = (
-    (signal.SIGINT, 5.0),
-    (signal.SIGTERM, 3.0),
+    (signal.SIGTERM, 5.0),
     (signal.SIGKILL, 2.0),
 )
 
@@ -156,14 +156,14 @@ class Supervisor:
             except OSError as exc:
                 _log(f'cannot start {spec.name} ({spec.argv[0]}): {exc.strerror or exc}'
                      + self._stopping())
-                self._stop_all(trigger=None)
+                self._stop_all()
                 return 1
         _log('started ' + ', '.join(f'{c.name} (pid {c.pid})' for c in self._children))
         while True:
             if self._signals:
                 trigger = self._signals[0]
                 _log(f'{signal.Signals(trigger).name} received' + self._stopping())
-                self._stop_all(trigger)
+                self._stop_all()
                 return 0
             for child in self._children:
                 code = child.popen.poll()
@@ -172,10 +172,10 @@ class Supervisor:
                 # The user quitting the foreground process (p, Ctrl-C) ends the graph normally.
                 if child.spec.foreground and code == 0:
                     _log(f'{child.name} exited' + self._stopping())
-                    self._stop_all(trigger=None)
+                    self._stop_all()
                     return 0
                 _log(f'{child.name} {describe_exit(code)}' + self._stopping())
-                self._stop_all(trigger=None)
+                self._stop_all()
                 return 1
             time.sleep(POLL_INTERVAL_S)
 
@@ -183,28 +183,28 @@ class Supervisor:
         names = ', '.join(c.name for c in self._children if c.running())
         return f': stopping {names}' if names else ''
 
-    def _stop_all(self, trigger: int | None) -> None:
-        previous: tuple[signal.Signals, float] | None = None
+    def _stop_all(self) -> None:
+        previous: signal.Signals | None = None
         for sig, timeout in self._escalation:
             alive = [c for c in self._children if c.running()]
             if not alive:
                 break
             if previous is not None:
                 names = ', '.join(c.name for c in alive)
-                _log(f'{names} still running after {previous[0].name}: sending {sig.name}')
+                _log(f'{names} still running after {previous.name}: sending {sig.name}')
             for child in alive:
-                # Ctrl-C on the terminal already sent SIGINT to the foreground process; a
-                # second one could interrupt its clean-up (restoring the terminal).
-                if not (child.spec.foreground and sig == trigger == signal.SIGINT):
-                    child.send(sig)
+                child.send(sig)
             signals_seen = len(self._signals)
             deadline = time.monotonic() + timeout
             while (any(c.running() for c in alive) and time.monotonic() < deadline
                    and len(self._signals) == signals_seen):
                 time.sleep(POLL_INTERVAL_S)
-            previous = (sig, timeout)
+            previous = sig
+        stuck = [c for c in self._children if c.running()]
         for child in self._children:
-            if child.running():
+            if child in stuck:
                 _log(f'{child.name} (pid {child.pid}) could not be stopped')
             elif child.kill_leftovers():
                 _log(f'killed processes left behind in the process group of {child.name}')
+        if self._children and not stuck:
+            _log('all stopped')

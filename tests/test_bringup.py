@@ -9,6 +9,7 @@ import json
 import os
 from pathlib import Path
 import pty
+import re
 import signal
 import subprocess
 import sys
@@ -36,28 +37,17 @@ if mode == 'exit':
 if mode == 'kill9':
     time.sleep(float(arg))
     os.kill(os.getpid(), signal.SIGKILL)
-if mode in ('stubborn', 'immortal'):
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-if mode == 'immortal':
+if mode == 'stubborn':
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
-if mode == 'spawn':  # leaves behind a grandchild that ignores SIGINT and SIGTERM
+if mode == 'spawn':  # leaves behind a grandchild that ignores SIGTERM
     pids.append(subprocess.Popen([sys.executable, __file__, pidfile + '.grandchild',
-                                  'immortal']).pid)
-if mode == 'tty':  # a foreground process: quits on p, counts the SIGINTs it gets
-    sigints = []
-    def on_sigint(*_):
-        sigints.append(1)
-        time.sleep(0.5)  # its clean-up, which a second SIGINT would interrupt
-        with open(pidfile + '.sigints', 'w') as f:
-            f.write(str(len(sigints)))
-        sys.exit(0)
-    signal.signal(signal.SIGINT, on_sigint)
+                                  'stubborn']).pid)
 with open(pidfile + '.tmp', 'w') as f:
     f.write(' '.join(map(str, pids)))
 os.rename(pidfile + '.tmp', pidfile)
-if mode == 'tty':
+if mode == 'tty':  # a foreground process that quits on p
     import tty
-    tty.setcbreak(0)  # like keys: a byte at a time, Ctrl-C still a signal
+    tty.setcbreak(0)  # a byte at a time, Ctrl-C still a signal
     while os.read(0, 1) != b'p':
         pass
     sys.exit(0)
@@ -70,7 +60,7 @@ DRIVER = """
 import json, signal, sys
 from bringup.supervisor import ProcessSpec, Supervisor
 specs = [ProcessSpec(**spec) for spec in json.loads(sys.argv[1])]
-escalation = [(signal.SIGINT, 1.5), (signal.SIGTERM, 1.5), (signal.SIGKILL, 2.0)]
+escalation = [(signal.SIGTERM, 1.5), (signal.SIGKILL, 2.0)]
 sys.exit(Supervisor(specs, escalation=escalation).run())
 """
 
@@ -163,14 +153,14 @@ def test_a_stop_signal_stops_everything_cleanly(tmp_path, sig):
     assert_all_gone(pids, tmp_path)
 
 
-def test_stopping_escalates_to_sigterm_then_sigkill(tmp_path):
-    graph = Graph(tmp_path, {'sim': 'stubborn', 'vision': 'immortal'})
+def test_stopping_escalates_to_sigkill(tmp_path):
+    graph = Graph(tmp_path, {'sim': 'stubborn', 'vision': 'run'})
     pids = graph.pids('sim') + graph.pids('vision')
     graph.proc.send_signal(signal.SIGINT)
     code, err = graph.finish()
     assert code == 0, err
-    assert 'sim, vision still running after SIGINT: sending SIGTERM' in err
-    assert 'vision still running after SIGTERM: sending SIGKILL' in err
+    assert 'sim still running after SIGTERM: sending SIGKILL' in err
+    assert 'all stopped' in err
     assert_all_gone(pids, tmp_path)
 
 
@@ -183,8 +173,8 @@ def test_a_second_stop_signal_skips_the_wait(tmp_path):
     started = time.monotonic()
     code, err = graph.finish()
     assert code == 0, err
-    assert 'sim still running after SIGINT: sending SIGTERM' in err
-    assert time.monotonic() - started < 1.2  # not the 1.5 s SIGINT deadline
+    assert 'sim still running after SIGTERM: sending SIGKILL' in err
+    assert time.monotonic() - started < 1.2  # not the 1.5 s SIGTERM deadline
     assert_all_gone(pids, tmp_path)
 
 
@@ -252,7 +242,7 @@ def test_quitting_the_foreground_process_stops_the_graph(tmp_path):
     assert_all_gone(pids, tmp_path)
 
 
-def test_ctrl_c_on_the_terminal_reaches_the_foreground_process_once(tmp_path):
+def test_ctrl_c_on_the_terminal_stops_the_graph(tmp_path):
     controller, terminal = open_terminal()
     try:
         graph = Graph(tmp_path, {'sim': 'run', 'keys': 'tty'}, foreground='keys',
@@ -264,8 +254,8 @@ def test_ctrl_c_on_the_terminal_reaches_the_foreground_process_once(tmp_path):
         os.close(controller)
         os.close(terminal)
     assert code == 0, err
-    assert 'SIGINT received: stopping sim, keys' in err
-    assert (tmp_path / 'keys.sigints').read_text() == '1'
+    # keys got the same SIGINT from the terminal and may already be gone.
+    assert re.search(r'SIGINT received: stopping sim(, keys)?\n', err), err
     assert 'still running' not in err
     assert_all_gone(pids, tmp_path)
 

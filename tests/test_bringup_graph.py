@@ -1,0 +1,134 @@
+"""The README's run command with the real nodes: headless graph, options routed, clean stop."""
+
+import os
+from pathlib import Path
+import re
+import signal
+import subprocess
+import termios
+
+from conftest import wait_for
+from geometry_msgs.msg import PointStamped
+import pytest
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, qos_profile_sensor_data
+from sensor_msgs.msg import Image
+from std_srvs.srv import Trigger
+from test_bringup import become_terminal_session_leader, open_terminal
+
+from bringup.graph import GRAPH
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def processes_in_group(pgid: int) -> list[int]:
+    """Return the live processes of process group ``pgid``."""
+    found = []
+    for stat in Path('/proc').glob('[0-9]*/stat'):
+        try:
+            fields = stat.read_text().rsplit(')', 1)[1].split()
+        except OSError:  # it ended while we looked
+            continue
+        if int(fields[2]) == pgid and fields[0] not in ('Z', 'X'):
+            found.append(int(stat.parent.name))
+    return found
+
+
+def nodes_ready(probe: Node, interactive: bool) -> bool:
+    """Tell whether every node of the graph is constructed (its parameter services exist).
+
+    Stopping the graph after that tests a running graph, not one still starting.
+    """
+    services = {name for name, _ in probe.get_service_names_and_types()}
+    return all(f'/{node.node_name}/list_parameters' in services
+               for node in GRAPH if interactive or not node.interactive)
+
+
+def test_headless_graph_takes_options_and_stops_on_sigterm(ros_graph, tmp_path):
+    probe = ros_graph.node('probe')
+    images: list[Image] = []
+    positions: list[PointStamped] = []
+    # Reliable, like the sim's publisher: best effort loses most large frames between processes.
+    probe.create_subscription(Image, 'camera/color/image_raw', images.append,
+                              QoSProfile(depth=5))
+    probe.create_subscription(PointStamped, 'ball/position', positions.append,
+                              qos_profile_sensor_data)
+    save_frame = probe.create_client(Trigger, 'vision/save_frame')
+    frames = tmp_path / 'frames'
+    log_path = tmp_path / 'run.log'
+    with log_path.open('w') as log:
+        # No terminal on stdin: headless. The first option goes to every node (only sim
+        # declares it), the second to sim alone, frames_dir reaches vision, port the viewer.
+        run = subprocess.Popen(
+            [str(ROOT / 'scripts/run'), 'camera_width:=320', 'camera_height:=240',
+             'sim:camera_rate:=10.0', f'frames_dir:={frames}', 'port:=0'],
+            stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=ros_graph.env)
+    try:
+        # The first run of scripts/run in a fresh clone installs the environment first.
+        wait_for(lambda: (images and positions) or run.poll() is not None, 180.0,
+                 'a camera image and a ball position from the graph')
+        assert run.poll() is None, f'the graph ended:\n{log_path.read_text()}'
+        assert (images[-1].width, images[-1].height) == (320, 240)
+
+        assert save_frame.wait_for_service(timeout_sec=10.0)
+        future = save_frame.call_async(Trigger.Request())
+        wait_for(future.done, 10.0, 'vision/save_frame')
+        assert future.result().success, future.result().message
+        assert str(frames) in future.result().message
+
+        wait_for(lambda: nodes_ready(probe, interactive=False), 30.0, 'all nodes')
+        started = re.search(r'bringup: started (.*)', log_path.read_text()).group(1)
+        pids = {name: int(pid) for name, pid in re.findall(r'(\w+) \(pid (\d+)\)', started)}
+        assert set(pids) >= {'sim', 'vision'}
+        assert 'keys' not in pids
+
+        run.send_signal(signal.SIGTERM)
+        assert run.wait(timeout=20) == 0, log_path.read_text()
+    finally:
+        run.kill()
+    output = log_path.read_text()
+    assert 'no terminal on standard input' in output
+    assert 'SIGTERM received: stopping ' + ', '.join(pids) in output
+    assert 'still running' not in output  # every node stopped cleanly on the first SIGINT
+    assert 'all stopped' in output
+    assert 'Traceback' not in output
+    for name, pid in pids.items():
+        assert not processes_in_group(pid), f'{name} left processes behind'
+
+
+@pytest.mark.parametrize('quit_key', [b'p', b'\x03'], ids=['p', 'ctrl-c'])
+def test_in_a_terminal_keys_runs_in_the_foreground_and_quitting_stops_all(
+        ros_graph, tmp_path, quit_key):
+    probe = ros_graph.node('probe')
+    controller, terminal = open_terminal()
+    before = termios.tcgetattr(terminal)
+    log_path = tmp_path / 'run.log'
+    try:
+        with log_path.open('w') as log:
+            run = subprocess.Popen(
+                [str(ROOT / 'scripts/run'), 'port:=0', 'camera_rate:=5.0'], stdin=terminal,
+                stdout=log, stderr=subprocess.STDOUT, env=ros_graph.env,
+                preexec_fn=become_terminal_session_leader)
+        try:
+            wait_for(lambda: nodes_ready(probe, interactive=True) or run.poll() is not None,
+                     180.0, 'all nodes, keys too')
+            assert run.poll() is None, log_path.read_text()
+            wait_for(lambda: 'keyboard teleop' in log_path.read_text(), 10.0, 'the key table')
+            os.write(controller, quit_key)
+            assert run.wait(timeout=20) == 0, log_path.read_text()
+        finally:
+            run.kill()
+        assert termios.tcgetattr(terminal) == before
+    finally:
+        os.close(controller)
+        os.close(terminal)
+    output = log_path.read_text()
+    started = re.search(r'bringup: started (.*)', output).group(1)
+    pids = {name: int(pid) for name, pid in re.findall(r'(\w+) \(pid (\d+)\)', started)}
+    assert list(pids)[-1] == 'keys'
+    assert 'keys exited: stopping ' + ', '.join(list(pids)[:-1]) in output
+    assert 'all stopped' in output
+    assert 'Traceback' not in output
+    for name, pid in pids.items():
+        if name != 'keys':
+            assert not processes_in_group(pid), f'{name} left processes behind'

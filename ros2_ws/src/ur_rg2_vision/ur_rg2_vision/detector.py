@@ -69,6 +69,11 @@ class HsvRange:
                               cv2.inRange(hsv, (0, s_lo, v_lo), (h_hi, s_hi, v_hi)))
 
 
+# The sim's default ball, RGBA (1, 0, 0, 1): pure red, darker on its shaded side.
+RED = HsvRange((170, 100, 40), (10, 255, 255))
+DEFAULT_MIN_RADIUS_PX = 4.0
+
+
 @dataclass(frozen=True)
 class Detection:
     """A ball found in the image, in full-resolution pixel coordinates."""
@@ -90,7 +95,8 @@ class Detection:
 class BallDetector:
     """Finds round blobs of one colour; see the module docstring for the method."""
 
-    def __init__(self, color: HsvRange, min_radius_px: float = 5.0) -> None:
+    def __init__(self, color: HsvRange = RED,
+                 min_radius_px: float = DEFAULT_MIN_RADIUS_PX) -> None:
         if not min_radius_px > 0:
             raise ValueError(f'min_radius_px must be positive, got {min_radius_px}')
         self.color = color

@@ -28,7 +28,7 @@ _TRIM_SIGMAS = 3.0
 _TRIM_FLOOR = 0.001  # m: residuals below this are never trimmed
 _MIN_KEPT_FRACTION = 0.6
 _MAX_RMS_FRACTION = 0.06  # of the radius: worse fits are not a sphere of that size
-_MAX_SIZE_RATIO = 1.3  # detected / expected image radius, and the inverse, at most this
+_SIZE_TOLERANCE = 1.25  # the detected circle's radius may be this factor off the expected
 
 
 @dataclass(frozen=True)
@@ -68,22 +68,26 @@ def locate_ball(detection: Detection, depth: np.ndarray, k: np.ndarray,
     centre = ray * distance
     keep = np.ones(len(points), dtype=bool)
     for _ in range(_ITERATIONS):
-        centre = _gauss_newton_step(points[keep], centre, ball_radius)
         residual = np.linalg.norm(points - centre, axis=1) - ball_radius
         spread = 1.4826 * np.median(np.abs(residual[keep] - np.median(residual[keep])))
         keep = np.abs(residual) <= max(_TRIM_SIGMAS * spread, _TRIM_FLOOR)
         if keep.sum() < _MIN_POINTS:
             return None
+        centre = _gauss_newton_step(points[keep], centre, ball_radius)
     residual = np.linalg.norm(points[keep] - centre, axis=1) - ball_radius
     rms = float(np.sqrt(np.mean(residual ** 2)))
     if keep.mean() < _MIN_KEPT_FRACTION or rms > _MAX_RMS_FRACTION * ball_radius:
         return None
-    # The sphere's outline is a cone of half-angle asin(radius / distance) around the centre.
-    sin_half_angle = ball_radius / np.linalg.norm(centre)
-    if not sin_half_angle < 1:
+    # The sphere's outline is a cone of half-angle asin(radius / distance) around the centre,
+    # seen at an angle theta off the optical axis: an ellipse with semi-axes f tan / cos(theta)
+    # (tangential) and f tan / cos(theta)^2 (radial). The fitted circle lies in between.
+    distance = float(np.linalg.norm(centre))
+    if not ball_radius < distance:
         return None
-    expected = (fx + fy) / 2 * sin_half_angle / np.sqrt(1 - sin_half_angle ** 2)
-    if not 1 / _MAX_SIZE_RATIO <= detection.radius / expected <= _MAX_SIZE_RATIO:
+    cos_theta = centre[2] / distance
+    f_tan = (fx + fy) / 2 * ball_radius / np.sqrt(distance ** 2 - ball_radius ** 2)
+    if not (f_tan / cos_theta / _SIZE_TOLERANCE <= detection.radius
+            <= f_tan / cos_theta ** 2 * _SIZE_TOLERANCE):
         return None
     return BallPosition(x=float(centre[0]), y=float(centre[1]), z=float(centre[2]), rms=rms,
                         points=int(keep.sum()))

@@ -37,7 +37,13 @@ from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
-from ur_rg2_vision.detector import BallDetector, Detection, HsvRange
+from ur_rg2_vision.detector import (
+    DEFAULT_MIN_RADIUS_PX,
+    RED,
+    BallDetector,
+    Detection,
+    HsvRange,
+)
 from ur_rg2_vision.frame_store import save_frame
 from ur_rg2_vision.localize import BallPosition, locate_ball
 from ur_rg2_vision.ros_image import camera_matrix, image_to_depth, image_to_rgb, rgb_to_image
@@ -53,9 +59,6 @@ _SAVE_WAIT_S = 0.2  # vision/save_frame waits this long for the latest frame's d
 _WARN_PERIOD_S = 10.0  # a persisting input problem is logged again after this long
 _DRAW_COLOR = (0, 255, 0)
 
-# Red wraps around hue 0: lower hue > upper hue means [lower, 179] + [0, upper].
-_DEFAULT_HSV_LOWER = [170, 100, 40]
-_DEFAULT_HSV_UPPER = [10, 255, 255]
 _DETECTION_PARAMETERS = ('hsv_lower', 'hsv_upper', 'min_radius_px', 'ball_radius')
 
 
@@ -112,12 +115,12 @@ class VisionNode(Node):
         self.declare_parameter('save_every_n', 0, ParameterDescriptor(
             description='Save every Nth colour frame (and its depth) automatically; 0: off.',
             integer_range=[IntegerRange(from_value=0, to_value=1_000_000, step=1)]))
-        self.declare_parameter('hsv_lower', _DEFAULT_HSV_LOWER, ParameterDescriptor(
+        self.declare_parameter('hsv_lower', list(RED.lower), ParameterDescriptor(
             description='Ball colour, lower HSV bound [H 0-179, S 0-255, V 0-255] (OpenCV '
                         'scale). A lower hue above the upper hue wraps around 0, as red does.'))
-        self.declare_parameter('hsv_upper', _DEFAULT_HSV_UPPER, ParameterDescriptor(
+        self.declare_parameter('hsv_upper', list(RED.upper), ParameterDescriptor(
             description='Ball colour, upper HSV bound [H, S, V]; see hsv_lower.'))
-        self.declare_parameter('min_radius_px', 4.0, ParameterDescriptor(
+        self.declare_parameter('min_radius_px', DEFAULT_MIN_RADIUS_PX, ParameterDescriptor(
             description='Smallest ball radius in pixels that counts as a ball.',
             floating_point_range=[FloatingPointRange(from_value=1.0, to_value=1000.0)]))
         self.declare_parameter('ball_radius', 0.03, ParameterDescriptor(
@@ -132,6 +135,7 @@ class VisionNode(Node):
 
         # Image-side state, touched by the image callback group only (one callback at a time).
         self._camera: tuple[np.ndarray, tuple[int, int]] | None = None  # k, (width, height)
+        self._awaiting_info: _Frame | None = None  # a complete frame without a fitting info
         self._pending: OrderedDict[tuple[int, int], _Frame] = OrderedDict()
         self._early_depths: OrderedDict[tuple[int, int], np.ndarray] = OrderedDict()
         self._color_count = 0
@@ -142,12 +146,13 @@ class VisionNode(Node):
         self._warned: dict[str, tuple[str, float]] = {}
 
         images = MutuallyExclusiveCallbackGroup()
+        # camera_info first: of messages ready together, the executor takes it first.
+        self.create_subscription(CameraInfo, 'camera/color/camera_info', self._on_camera_info,
+                                 _IMAGE_QOS, callback_group=images)
         self.create_subscription(Image, 'camera/color/image_raw', self._on_color, _IMAGE_QOS,
                                  callback_group=images)
         self.create_subscription(Image, 'camera/depth/image_raw', self._on_depth, _IMAGE_QOS,
                                  callback_group=images)
-        self.create_subscription(CameraInfo, 'camera/color/camera_info', self._on_camera_info,
-                                 _IMAGE_QOS, callback_group=images)
         self._position_pub = self.create_publisher(PointStamped, 'ball/position', 10)
         self._image_pub = self.create_publisher(Image, 'ball/image', _IMAGE_QOS)
         self.create_service(Trigger, 'vision/save_frame', self._on_save_frame,
@@ -185,6 +190,10 @@ class VisionNode(Node):
             self._camera = camera_matrix(msg), (msg.width, msg.height)
         except ValueError as error:
             self._warn('camera_info', f'camera_info ignored: {error}')
+            return
+        frame, self._awaiting_info = self._awaiting_info, None
+        if frame is not None:
+            self._publish_position(frame)
 
     def _on_color(self, msg: Image) -> None:
         try:
@@ -231,12 +240,27 @@ class VisionNode(Node):
         with self._lock:
             frame.depth = depth
             self._depth_arrived.notify_all()
+        if frame.detections and not self._info_fits(frame):
+            # Its camera_info may still be on the way: the next camera_info retries it.
+            if self._awaiting_info is not None:
+                self._warn('locate', 'no camera/color/camera_info for the '
+                           f'{frame.rgb.shape[1]}x{frame.rgb.shape[0]} colour images: '
+                           'no ball/position')
+            self._awaiting_info = frame
+        else:
+            self._publish_position(frame)
+        if frame.autosave:
+            self._autosave(frame)
+
+    def _publish_position(self, frame: _Frame) -> None:
         position = self._locate(frame)
         if position is not None:
             self._position_pub.publish(PointStamped(
                 header=frame.header, point=Point(x=position.x, y=position.y, z=position.z)))
-        if frame.autosave:
-            self._autosave(frame)
+
+    def _info_fits(self, frame: _Frame) -> bool:
+        height, width = frame.rgb.shape[:2]
+        return self._camera is not None and self._camera[1] == (width, height)
 
     def _locate(self, frame: _Frame) -> BallPosition | None:
         """Return the 3D position of the first detection the depth confirms as a ball."""
@@ -246,9 +270,9 @@ class VisionNode(Node):
         if self._camera is None:
             self._warn('locate', 'no camera/color/camera_info yet: no ball/position')
             return None
-        k, info_size = self._camera
-        if info_size != (width, height):
-            self._warn('locate', f'camera_info is for {info_size[0]}x{info_size[1]}, the colour '
+        k, (info_width, info_height) = self._camera
+        if (info_width, info_height) != (width, height):
+            self._warn('locate', f'camera_info is for {info_width}x{info_height}, the colour '
                        f'image is {width}x{height}: no ball/position')
             return None
         if frame.depth.shape != (height, width):

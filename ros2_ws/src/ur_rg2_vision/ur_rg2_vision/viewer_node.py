@@ -59,10 +59,11 @@ class ViewerNode(Node):
             self.destroy_node()
             raise
 
-        # Reliable: across processes best effort loses most 640x480 frames here. Depth 1: a
-        # viewer only ever wants the newest frame.
+        # Reliable: across processes best effort loses most 640x480 frames here. Depth 5 as
+        # the sim and vision use: a busy moment (GIL, a loaded machine) must not drop frames;
+        # the hub keeps only the newest anyway.
         self.create_subscription(Image, image_topic, self._on_image,
-                                 QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE))
+                                 QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE))
         self.create_subscription(JointState, 'joint_states', self._on_joint_state, 10)
         self.create_subscription(PointStamped, 'ball/position', self._on_ball, 10)
 

@@ -87,7 +87,7 @@ class ViewerNode(Node):
 
     def _on_joint_state(self, msg: JointState) -> None:
         if len(msg.position) != len(msg.name):
-            return
+            return  # positions omitted or malformed: no angles to show from this message
         for key, value in joint_summary(msg.name, msg.position).items():
             self._hub.set_state(key, value)
 

@@ -43,7 +43,7 @@ browser view (viewer: open http://127.0.0.1:8080/) as separate processes and, wh
 input is a terminal, the keyboard teleop (keys) in the foreground. Quit with p or Ctrl-C in
 keys; everything stops with it. Without a terminal (piped, CI, a service manager) sim, vision
 and viewer run headless until SIGINT or SIGTERM. If any process dies, the others are stopped
-and the exit status is 1.
+and the exit status is 1. Nodes are stopped with SIGTERM, then SIGKILL after 5 s.
 
 parameters:
   NAME:=VALUE       a ROS parameter for every node; each node takes the ones it declares

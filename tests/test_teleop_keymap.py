@@ -207,13 +207,23 @@ def test_console_writes_whole_lines():
 
 
 def test_settle_watcher_shows_once_after_motion_stops():
-    watcher = SettleWatcher()
+    watcher = SettleWatcher(settle_time=0.1)
     watcher.moved(0.0)
     assert not watcher.observe(0.01, [0.0] * 6)  # not started yet
     assert not watcher.observe(0.02, [0.5, 0, 0, 0, 0, 0])
     assert not watcher.observe(0.03, [0.2, 0, 0, 0, 0, 0])
-    assert watcher.observe(0.04, [0.0] * 6)
-    assert not watcher.observe(0.05, [0.0] * 6)
+    assert not watcher.observe(0.04, [0.0] * 6)
+    assert not watcher.observe(0.13, [0.0] * 6)
+    assert watcher.observe(0.14, [0.0] * 6)
+    assert not watcher.observe(0.15, [0.0] * 6)
+
+
+def test_settle_watcher_waits_out_an_overshoot():
+    watcher = SettleWatcher(settle_time=0.1)
+    watcher.moved(0.0)
+    for t, speed in ((0.02, 1.0), (0.05, 0.0), (0.08, -0.3), (0.16, 0.0)):
+        assert not watcher.observe(t, [speed])
+    assert watcher.observe(0.26, [0.0])
 
 
 def test_settle_watcher_shows_when_nothing_moves():

@@ -48,33 +48,41 @@ class SettleWatcher:
     """Decide when a move is over, so its result is shown once, not once per joint state.
 
     After :meth:`moved`, :meth:`observe` is fed the joint speeds of each joint state and says
-    True once: when the arm has moved and stopped again, when it did not start moving within
-    ``start_timeout`` s (a joint already at its limit, a sim without velocities), or after
-    ``max_wait`` s whatever happens.
+    True once: when the arm has moved and then stayed still for ``settle_time`` s (a joint
+    overshooting its target stands still for an instant only), when it did not start moving
+    within ``start_timeout`` s (a joint already at its limit, a sim without velocities), or
+    after ``max_wait`` s whatever happens.
     """
 
-    def __init__(self, start_timeout: float = 0.5, max_wait: float = 5.0,
-                 still_speed: float = 0.02) -> None:
+    def __init__(self, start_timeout: float = 0.5, settle_time: float = 0.1,
+                 max_wait: float = 5.0, still_speed: float = 0.02) -> None:
         self._start_timeout = start_timeout
+        self._settle_time = settle_time
         self._max_wait = max_wait
         self._still_speed = still_speed
         self._since: float | None = None
         self._moving_seen = False
+        self._still_since: float | None = None
 
     def moved(self, now: float) -> None:
         """Note that a move was commanded at monotonic time ``now``."""
         self._since = now
         self._moving_seen = False
+        self._still_since = None
 
     def observe(self, now: float, speeds: Sequence[float]) -> bool:
         """Take one joint state's ``speeds`` (rad/s); return True when the move is over."""
         if self._since is None:
             return False
-        moving = any(abs(v) > self._still_speed for v in speeds)
-        self._moving_seen |= moving
+        if any(abs(v) > self._still_speed for v in speeds):
+            self._moving_seen = True
+            self._still_since = None
+        elif self._still_since is None:
+            self._still_since = now
         elapsed = now - self._since
+        settled = self._still_since is not None and now - self._still_since >= self._settle_time
         done = (
-            (self._moving_seen and not moving)
+            (self._moving_seen and settled)
             or (not self._moving_seen and elapsed > self._start_timeout)
             or elapsed > self._max_wait
         )

@@ -42,12 +42,13 @@ if mode == 'stubborn':
 if mode == 'spawn':  # leaves behind a grandchild that ignores SIGTERM
     pids.append(subprocess.Popen([sys.executable, __file__, pidfile + '.grandchild',
                                   'stubborn']).pid)
+if mode == 'tty':  # a foreground process that quits on p
+    import tty
+    tty.setcbreak(0)  # a byte at a time, Ctrl-C still a signal; before "ready": it flushes
 with open(pidfile + '.tmp', 'w') as f:
     f.write(' '.join(map(str, pids)))
 os.rename(pidfile + '.tmp', pidfile)
-if mode == 'tty':  # a foreground process that quits on p
-    import tty
-    tty.setcbreak(0)  # a byte at a time, Ctrl-C still a signal
+if mode == 'tty':
     while os.read(0, 1) != b'p':
         pass
     sys.exit(0)

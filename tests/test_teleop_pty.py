@@ -29,7 +29,7 @@ TOLERANCE = math.radians(1.0)
 class KeysTerminal:
     """``keys`` in a pseudo-terminal whose attributes the test can compare before and after."""
 
-    def __init__(self, env: dict[str, str]) -> None:
+    def __init__(self, env: dict[str, str], *args: str) -> None:
         self.master, self.slave = os.openpty()
         # Unusual starting attributes, so that restoring means restoring these, not defaults.
         attributes = termios.tcgetattr(self.slave)
@@ -38,7 +38,7 @@ class KeysTerminal:
         termios.tcsetattr(self.slave, termios.TCSANOW, attributes)
         self.initial = termios.tcgetattr(self.slave)
         self.process = subprocess.Popen(
-            [KEYS], stdin=self.slave, stdout=self.slave, stderr=self.slave, env=env,
+            [KEYS, *args], stdin=self.slave, stdout=self.slave, stderr=self.slave, env=env,
             start_new_session=True)
         self.output = ''
         self._unread = 0
@@ -221,6 +221,18 @@ def test_signals_exit_0_restoring_the_terminal(keys, signum):
     keys.process.send_signal(signum)
     assert keys.wait() == 0
     assert keys.attributes() == keys.initial
+
+
+@pytest.mark.parametrize('value', ['90.0', '2'])
+def test_bad_step_parameter_is_a_clear_error(ros_graph, value):
+    terminal = KeysTerminal(ros_graph.env, '--ros-args', '-p', f'step_deg:={value}')
+    try:
+        assert terminal.wait() == 2
+        assert re.search(r'^keys: .*step_deg', terminal.output, re.MULTILINE), terminal.output
+        assert 'Traceback' not in terminal.output
+        assert terminal.attributes() == terminal.initial
+    finally:
+        terminal.close()
 
 
 def test_closed_terminal_ends_keys_cleanly(keys):

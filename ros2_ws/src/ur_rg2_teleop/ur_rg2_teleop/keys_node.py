@@ -10,7 +10,7 @@ import time
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
 import rclpy
 from rclpy.client import Client
-from rclpy.exceptions import InvalidParameterValueException
+from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -183,7 +183,7 @@ def main(args: list[str] | None = None) -> int:
                 _key_loop(node, KeyReader(stdin), spinner, spin_errors)
     except (Stop, EOFError):
         pass
-    except InvalidParameterValueException as error:
+    except (InvalidParameterTypeException, InvalidParameterValueException) as error:
         print(f'keys: {error}', file=sys.stderr)
         return USAGE_ERROR
     finally:

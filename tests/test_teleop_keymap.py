@@ -21,7 +21,7 @@ from ur_rg2_teleop.keymap import (
     larger_step,
     smaller_step,
 )
-from ur_rg2_teleop.terminal import KeyReader, Stop, raw_mode, split_keys, stop_on_signals
+from ur_rg2_teleop.terminal import KeyReader, Stop, raw_mode, signal_pipe, split_keys
 
 CONTRACT_JOGS = {
     'q': Jog(0, 1), 'w': Jog(0, -1),
@@ -174,12 +174,14 @@ def test_raw_mode_restores_exact_attributes_on_exception(pty_pair):
     assert termios.tcgetattr(slave) == before
 
 
-@pytest.mark.parametrize('signum', [signal.SIGTERM, signal.SIGINT])
-def test_stop_on_signals_raises_stop_once_and_restores_handlers(signum):
+@pytest.mark.parametrize('signum', [signal.SIGTERM, signal.SIGINT, signal.SIGHUP])
+def test_a_signal_stops_the_key_reader_and_handlers_come_back(pty_pair, signum):
+    _, slave = pty_pair
     previous = signal.getsignal(signum)
-    with pytest.raises(Stop), stop_on_signals():
-        signal.raise_signal(signum)
-        pytest.fail('no Stop raised')
+    with signal_pipe() as stop_fd:
+        signal.raise_signal(signum)  # recorded, not raised here
+        with pytest.raises(Stop, match=signal.Signals(signum).name):
+            KeyReader(slave, stop_fd).read(timeout=5.0)
     assert signal.getsignal(signum) is previous
 
 

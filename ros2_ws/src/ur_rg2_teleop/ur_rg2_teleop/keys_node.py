@@ -35,7 +35,7 @@ from ur_rg2_teleop.keymap import (
     larger_step,
     smaller_step,
 )
-from ur_rg2_teleop.terminal import KeyReader, Stop, raw_mode, stop_on_signals
+from ur_rg2_teleop.terminal import KeyReader, Stop, raw_mode, signal_pipe
 
 USAGE_ERROR = 2
 # How often the key loop looks up from the keyboard to check that ROS is still being spun.
@@ -167,20 +167,20 @@ def main(args: list[str] | None = None) -> int:
               file=sys.stderr)
         return USAGE_ERROR
     console = Console()
-    # rclpy's own handlers would shut ROS down under the key loop; ours raise Stop in it.
+    # rclpy's own handlers would shut ROS down under the key loop; signal_pipe ends the loop.
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     executor = SingleThreadedExecutor()
     node = None
     spin_errors: list[BaseException] = []
     spinner = threading.Thread(target=_spin, args=(executor, spin_errors), daemon=True)
     try:
-        with stop_on_signals():
+        with signal_pipe() as stop_fd:
             node = KeysNode(console)
             executor.add_node(node)
             spinner.start()
             with raw_mode(stdin):
                 console.line(help_text(node.step_deg))
-                _key_loop(node, KeyReader(stdin), spinner, spin_errors)
+                _key_loop(node, KeyReader(stdin, stop_fd), spinner, spin_errors)
     except (Stop, EOFError):
         pass
     except (InvalidParameterTypeException, InvalidParameterValueException) as error:

@@ -18,7 +18,7 @@ _IFLAG, _OFLAG, _LFLAG, _CC = 0, 1, 3, 6
 
 
 class Stop(Exception):  # noqa: N818 - a request to end, not an error
-    """A signal asked the process to end (raised by :func:`stop_on_signals`)."""
+    """A signal asked the process to end (raised by :meth:`KeyReader.read`)."""
 
 
 def raw_attributes(attributes: list) -> list:
@@ -58,27 +58,28 @@ def raw_mode(fd: int) -> Iterator[None]:
 
 
 @contextmanager
-def stop_on_signals(
+def signal_pipe(
     signums: Iterable[signal.Signals] = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP),
-) -> Iterator[None]:
-    """Turn the first of ``signums`` into a :class:`Stop` exception in the main thread.
+) -> Iterator[int]:
+    """Record ``signums`` instead of acting on them; yield a descriptor readable after one.
 
-    Later signals are ignored until the block exits, so that cleanup (restoring the terminal)
-    cannot be cut short; the previous handlers are back after the block.
+    Nothing is raised in the middle of other code, so no cleanup (restoring the terminal) can
+    be cut short: the key loop sees the signal in its ``select`` and ends in order. The
+    previous handlers are back after the block.
     """
-    signums = tuple(signums)
-
-    def handler(signum: int, _frame: object) -> None:
-        for s in signums:
-            signal.signal(s, signal.SIG_IGN)
-        raise Stop(signal.Signals(signum).name)
-
-    previous = {s: signal.signal(s, handler) for s in signums}
+    read_fd, write_fd = os.pipe()
+    os.set_blocking(write_fd, False)  # set_wakeup_fd must never block in a signal handler
+    previous_fd = signal.set_wakeup_fd(write_fd)
+    # A Python handler, even one doing nothing, is what makes the signal reach the pipe.
+    previous = {s: signal.signal(s, lambda *_: None) for s in signums}
     try:
-        yield
+        yield read_fd
     finally:
-        for s, h in previous.items():
-            signal.signal(s, h)
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+        signal.set_wakeup_fd(previous_fd)
+        os.close(read_fd)
+        os.close(write_fd)
 
 
 def _sequence_length(data: bytes, start: int) -> int | None:
@@ -126,8 +127,10 @@ def split_keys(data: bytes) -> tuple[list[str], bytes]:
 class KeyReader:
     """Read whole keys from a terminal file descriptor with ``select`` and ``os.read``."""
 
-    def __init__(self, fd: int) -> None:
+    def __init__(self, fd: int, stop_fd: int | None = None) -> None:
+        """Read keys from ``fd``; end with :class:`Stop` once ``stop_fd`` (a signal_pipe)."""
         self._fd = fd
+        self._stop_fd = stop_fd
 
     def _read(self) -> bytes:
         try:
@@ -147,9 +150,14 @@ class KeyReader:
     def read(self, timeout: float | None) -> list[str]:
         """Return the keys pressed, waiting up to ``timeout`` s for one; [] on timeout.
 
-        Raises EOFError when the terminal is gone.
+        Raises EOFError when the terminal is gone, Stop when a signal came.
         """
-        if not self._ready(timeout):
+        watched = [self._fd] if self._stop_fd is None else [self._fd, self._stop_fd]
+        ready = select.select(watched, [], [], timeout)[0]
+        if self._stop_fd in ready:
+            signum = os.read(self._stop_fd, 1)[0]
+            raise Stop(signal.Signals(signum).name)
+        if not ready:
             return []
         keys, tail = split_keys(self._read())
         while tail and self._ready(ESCAPE_TIMEOUT):

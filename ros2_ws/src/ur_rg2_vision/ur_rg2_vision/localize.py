@@ -15,6 +15,7 @@ and anything else that slipped through are dropped as outliers of the sphere fit
    the wrong size for the ball.
 """
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -25,7 +26,8 @@ _CORE = 0.85  # use pixels within this fraction of the circle radius (the rim mi
 _MIN_POINTS = 6
 _ITERATIONS = 6
 _TRIM_SIGMAS = 3.0
-_TRIM_FLOOR = 0.001  # m: residuals below this are never trimmed
+_TRIM_FLOOR = 0.001  # m: residuals this close to the median are never trimmed
+_FIRST_TRIM_FLOOR = 0.2  # of the radius, in the first round
 _MIN_KEPT_FRACTION = 0.6
 _MAX_RMS_FRACTION = 0.06  # of the radius: worse fits are not a sphere of that size
 _SIZE_TOLERANCE = 1.25  # the detected circle's radius may be this factor off the expected
@@ -67,30 +69,43 @@ def locate_ball(detection: Detection, depth: np.ndarray, k: np.ndarray,
     distance = np.median(points @ ray + ball_radius * np.sqrt(np.clip(1 - rho ** 2, 0, 1)))
     centre = ray * distance
     keep = np.ones(len(points), dtype=bool)
+    floor = _FIRST_TRIM_FLOOR * ball_radius  # the start is a few millimetres off
     for _ in range(_ITERATIONS):
         residual = np.linalg.norm(points - centre, axis=1) - ball_radius
-        spread = 1.4826 * np.median(np.abs(residual[keep] - np.median(residual[keep])))
-        keep = np.abs(residual) <= max(_TRIM_SIGMAS * spread, _TRIM_FLOOR)
+        offset = np.median(residual[keep])
+        spread = 1.4826 * np.median(np.abs(residual[keep] - offset))
+        keep = np.abs(residual - offset) <= max(_TRIM_SIGMAS * spread, floor)
         if keep.sum() < _MIN_POINTS:
             return None
         centre = _gauss_newton_step(points[keep], centre, ball_radius)
+        floor = _TRIM_FLOOR
     residual = np.linalg.norm(points[keep] - centre, axis=1) - ball_radius
     rms = float(np.sqrt(np.mean(residual ** 2)))
     if keep.mean() < _MIN_KEPT_FRACTION or rms > _MAX_RMS_FRACTION * ball_radius:
         return None
-    # The sphere's outline is a cone of half-angle asin(radius / distance) around the centre,
-    # seen at an angle theta off the optical axis: an ellipse with semi-axes f tan / cos(theta)
-    # (tangential) and f tan / cos(theta)^2 (radial). The fitted circle lies in between.
+    # The sphere's outline is a cone of half-angle asin(radius / distance): on the axis a
+    # circle of radius f tan(half-angle). Off the axis by theta, the image is stretched by up to
+    # 1 / cos(theta)^2 unless the detector was given the camera matrix to undo that.
     distance = float(np.linalg.norm(centre))
     if not ball_radius < distance:
         return None
     cos_theta = centre[2] / distance
     f_tan = (fx + fy) / 2 * ball_radius / np.sqrt(distance ** 2 - ball_radius ** 2)
-    if not (f_tan / cos_theta / _SIZE_TOLERANCE <= detection.radius
+    if not (f_tan / _SIZE_TOLERANCE <= detection.radius
             <= f_tan / cos_theta ** 2 * _SIZE_TOLERANCE):
         return None
     return BallPosition(x=float(centre[0]), y=float(centre[1]), z=float(centre[2]), rms=rms,
                         points=int(keep.sum()))
+
+
+def locate_first(detections: Sequence[Detection], depth: np.ndarray, k: np.ndarray,
+                 ball_radius: float) -> BallPosition | None:
+    """Return the position of the first detection that the depth confirms as a ball."""
+    for detection in detections:
+        position = locate_ball(detection, depth, k, ball_radius)
+        if position is not None:
+            return position
+    return None
 
 
 def _gauss_newton_step(points: np.ndarray, centre: np.ndarray, radius: float) -> np.ndarray:

@@ -45,7 +45,7 @@ from ur_rg2_vision.detector import (
     HsvRange,
 )
 from ur_rg2_vision.frame_store import save_frame
-from ur_rg2_vision.localize import BallPosition, locate_ball
+from ur_rg2_vision.localize import BallPosition, locate_first
 from ur_rg2_vision.ros_image import camera_matrix, image_to_depth, image_to_rgb, rgb_to_image
 
 NODE_NAME = 'ur_rg2_vision'
@@ -201,8 +201,9 @@ class VisionNode(Node):
         except ValueError as error:
             self._warn('color', f'colour image ignored: {error}')
             return
-        config = self._config
-        frame = _Frame(msg.header, rgb, config.detector.detect(rgb))
+        frame = _Frame(msg.header, rgb, [])
+        k = self._camera[0] if self._info_fits(frame) else None
+        frame.detections = self._config.detector.detect(rgb, k)
         if self._image_pub.get_subscription_count() > 0:
             self._image_pub.publish(rgb_to_image(_annotate(rgb, frame.detections), msg.header))
         self._color_count += 1
@@ -279,12 +280,7 @@ class VisionNode(Node):
             self._warn('locate', f'depth image {frame.depth.shape[1]}x{frame.depth.shape[0]} is '
                        f'not registered to the {width}x{height} colour image: no ball/position')
             return None
-        config = self._config
-        for detection in frame.detections:
-            position = locate_ball(detection, frame.depth, k, config.ball_radius)
-            if position is not None:
-                return position
-        return None
+        return locate_first(frame.detections, frame.depth, k, self._config.ball_radius)
 
     # -- saving -------------------------------------------------------------------------------
 

@@ -96,6 +96,8 @@ class SimWorld:
         self._configure_contacts()
         self.arm_targets = dict.fromkeys(ARM_JOINTS, 0.0)
         self.set_arm_positions(dict(zip(ARM_JOINTS, config.home_position)))
+        for name in GRIPPER_JOINTS:  # the RG2 starts fully open
+            self._p.resetJointState(self.robot, self._joint_index[name], RG2_MAX_OPENING / 2)
         self.gripper_target = RG2_MAX_OPENING
         self._drive_gripper()
         self.ball = self._create_ball()

@@ -74,11 +74,12 @@ class RosGraph:
         return self.add(Node(name, context=self.context, **kwargs))
 
     def shutdown(self) -> None:
+        # Stop spinning before destroying nodes, so no callback runs on a destroyed handle.
         self.executor.shutdown(timeout_sec=5.0)
+        self._thread.join(timeout=5.0)
         for node in reversed(self._nodes):
             node.destroy_node()
         self.context.try_shutdown()
-        self._thread.join(timeout=5.0)
 
 
 @pytest.fixture

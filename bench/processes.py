@@ -42,7 +42,10 @@ def percentile(values: Sequence[float], q: float) -> float:
 @contextmanager
 def node_process(executable: str, parameters: dict[str, str], domain_id: int,
                  ready: str = '', timeout: float = 90.0) -> Iterator[subprocess.Popen]:
-    """Run a node executable of this venv; wait for ``ready`` in its log; stop it with SIGINT."""
+    """Run a node executable of this venv; wait for ``ready`` in its log; stop it with SIGINT.
+
+    After the block, the process's ``log`` attribute holds everything it printed.
+    """
     command = [str(Path(sys.executable).parent / executable), '--ros-args']
     for name, value in parameters.items():
         command += ['-p', f'{name}:={value}']
@@ -67,3 +70,5 @@ def node_process(executable: str, parameters: dict[str, str], domain_id: int,
             except subprocess.TimeoutExpired:
                 process.kill()
                 process.wait()
+            log.seek(0)
+            process.log = log.read().decode(errors='replace')  # for what it says on exit

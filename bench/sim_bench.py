@@ -5,6 +5,7 @@ The sim runs as its own process with its defaults (real-time factor 1, 640x480 c
 0 with the camera off, it measures physics steps per second. Run alone: python -m bench.sim_bench
 """
 
+import re
 import threading
 import time
 
@@ -70,6 +71,7 @@ class _Listener:
 
     def close(self) -> None:
         self.executor.shutdown(timeout_sec=5)
+        self.thread.join(timeout=5)
         self.node.destroy_node()
         self.context.try_shutdown()
 
@@ -126,20 +128,16 @@ def _render_times() -> list[tuple[str, str, str]]:
 
 
 def _headless_speed() -> list[tuple[str, str, str]]:
-    listener = _Listener(DOMAIN_ID + 1)
-    try:
-        parameters = {'real_time_factor': '0.0', 'camera_rate': '0.0'}
-        with node_process('sim', parameters, DOMAIN_ID + 1, ready=READY):
-            listener.wait(lambda: listener.snapshot()[3] > 0, 60, '/clock')
-            time.sleep(1.0)
-            wall0, _, _, sim0 = listener.snapshot()
-            time.sleep(HEADLESS_WINDOW_S)
-            wall1, _, _, sim1 = listener.snapshot()
-    finally:
-        listener.close()
-    steps = (sim1 - sim0) / 1e9 * 240.0
-    return [('sim: physics steps/s (headless, RTF 0, camera off)',
-             f'{steps / (wall1 - wall0):,.0f}', '>= 20,000')]
+    # No subscriber here: a reader of 100 Hz-of-sim-time topics at this speed would compete
+    # for the two cores. The sim reports its own speed when it stops.
+    parameters = {'real_time_factor': '0.0', 'camera_rate': '0.0'}
+    with node_process('sim', parameters, DOMAIN_ID + 1, ready=READY) as sim:
+        time.sleep(HEADLESS_WINDOW_S)
+    found = re.search(r'([\d,]+) physics steps/s', sim.log)
+    if not found:
+        raise RuntimeError(f'benchmark: the sim did not report its speed: {sim.log[-2000:]}')
+    return [('sim: physics steps/s (headless, RTF 0, camera off)', found.group(1),
+             '>= 20,000')]
 
 
 def run() -> list[tuple[str, str, str]]:

@@ -146,6 +146,7 @@ class SimNode(Node):
             home_position=s.home_position, gui=gui))
 
         self._clock_pub = self.create_publisher(Clock, '/clock', 10)
+        self._clock_msg = Clock()
         self._joint_pub = self.create_publisher(JointState, 'joint_states', 10)
         self._joint_msg = JointState(name=list(self._world.joint_names))
         self._color_pub = self.create_publisher(Image, 'camera/color/image_raw', IMAGE_QOS)
@@ -155,8 +156,9 @@ class SimNode(Node):
         self._depth_info_pub = self.create_publisher(
             CameraInfo, 'camera/depth/camera_info', IMAGE_QOS)
 
-        self.create_subscription(JointState, 'joint_jog', self._on_jog, 10)
-        self.create_subscription(JointState, 'joint_command', self._on_command, 10)
+        # Jogs are relative: a burst of key presses must not lose any.
+        self.create_subscription(JointState, 'joint_jog', self._on_jog, 100)
+        self.create_subscription(JointState, 'joint_command', self._on_command, 100)
         # Services wait for the simulation; a reentrant group lets them wait side by side
         # while subscriptions keep being served.
         services = ReentrantCallbackGroup()
@@ -177,6 +179,7 @@ class SimNode(Node):
     def destroy_node(self) -> None:
         """Stop the simulation thread and release pybullet."""
         self._sim.stop()
+        self.get_logger().info(self._sim.summary())
         self._world.close()
         super().destroy_node()
 
@@ -189,7 +192,8 @@ class SimNode(Node):
 
     def clock(self, stamp_ns: int) -> None:
         """Publish ``/clock``."""
-        self._clock_pub.publish(Clock(clock=_stamp(stamp_ns)))
+        self._clock_msg.clock = _stamp(stamp_ns)
+        self._clock_pub.publish(self._clock_msg)
 
     def joint_states(self, stamp_ns: int, sample: JointStateSample) -> None:
         """Publish ``joint_states``."""

@@ -66,10 +66,12 @@ class SimulationLoop:
         self.camera = camera
         self.step_ns = round(world.dt * NS)
         self.sim_time_ns = 0
+        self.started_at: Optional[float] = None  # time.monotonic() when the thread started
         self.error: Optional[BaseException] = None
         self._calls: queue.SimpleQueue = queue.SimpleQueue()
         self._waiters: list[_Waiter] = []
         self._stop = threading.Event()
+        self._wake = threading.Event()  # set by call(): run it now, even while pacing
         self._finished = threading.Event()
         self._thread = threading.Thread(target=self._run, name='simulation', daemon=True)
         self._next_clock = self._next_joint_states = self._next_frame = 0
@@ -84,6 +86,7 @@ class SimulationLoop:
     def stop(self, timeout: float = 2.0) -> None:
         """Stop the simulation thread and wait for it (up to ``timeout`` seconds)."""
         self._stop.set()
+        self._wake.set()
         if self._thread.is_alive() and self._thread is not threading.current_thread():
             self._thread.join(timeout)
 
@@ -92,10 +95,21 @@ class SimulationLoop:
         """Return whether the simulation thread is alive."""
         return self._thread.is_alive()
 
+    def summary(self) -> str:
+        """Return how much simulation time ran, in how much wall time, and at what speed."""
+        wall = time.monotonic() - self.started_at if self.started_at is not None else 0.0
+        sim = self.sim_time_ns / NS
+        steps = self.sim_time_ns // self.step_ns
+        if wall <= 0:
+            return 'the simulation did not run'
+        return (f'simulated {sim:.1f} s in {wall:.1f} s ({sim / wall:.2f}x real time, '
+                f'{steps / wall:,.0f} physics steps/s)')
+
     def call(self, function: Callable[[SimWorld], object]) -> Future:
         """Run ``function(world)`` on the simulation thread before the next step."""
         future: Future = Future()
         self._calls.put((function, future))
+        self._wake.set()
         if self._finished.is_set():
             self._fail_pending(RuntimeError('the simulation is not running'))
         return future
@@ -131,6 +145,7 @@ class SimulationLoop:
     # -- simulation thread --------------------------------------------------------------------
 
     def _run(self) -> None:
+        self.started_at = time.monotonic()
         try:
             while not self._stop.is_set():
                 self._run_calls()
@@ -193,11 +208,18 @@ class SimulationLoop:
         if self._pace_origin is None:
             self._pace_origin = (wall, self.sim_time_ns)
         origin_wall, origin_sim = self._pace_origin
-        delay = origin_wall + (self.sim_time_ns - origin_sim) / NS / rtf - wall
-        if delay > 0:
-            self._stop.wait(delay)
-        elif delay < -_MAX_LAG:
+        due = origin_wall + (self.sim_time_ns - origin_sim) / NS / rtf
+        if due - wall < -_MAX_LAG:
             self._pace_origin = (wall, self.sim_time_ns)
+            return
+        # Commands arriving while the loop waits for the wall clock take effect at once:
+        # a jog then moves the arm in the very next step.
+        while (remaining := due - time.monotonic()) > 0 and not self._stop.is_set():
+            if self._wake.wait(remaining):
+                self._wake.clear()
+                self._run_calls()
+                if self._pace_origin is None:  # rescheduled: pace from here afresh
+                    return
 
     def _fail_pending(self, error: Exception) -> None:
         while not self._calls.empty():

@@ -117,13 +117,17 @@ class BallDetector:
         if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
             raise ValueError(f'expected an RGB uint8 image, got {rgb.dtype} {rgb.shape}')
         height, width = rgb.shape[:2]
-        coarse = self.color.mask(np.ascontiguousarray(rgb[::_COARSE_SCALE, ::_COARSE_SCALE]))
-        count, _, stats, _ = cv2.connectedComponentsWithStats(coarse, connectivity=8)
+        small = cv2.resize(rgb, (width // _COARSE_SCALE, height // _COARSE_SCALE),
+                           interpolation=cv2.INTER_NEAREST)
+        coarse = self.color.mask(small)
+        outlines, _ = cv2.findContours(coarse, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+        # Blobs by bounding box, largest first; specks far below the smallest ball are noise.
         min_area = max(3.0, 0.25 * math.pi * (self.min_radius_px / _COARSE_SCALE) ** 2)
-        blobs = [stats[i] for i in range(1, count) if stats[i, cv2.CC_STAT_AREA] >= min_area]
-        blobs.sort(key=lambda s: -s[cv2.CC_STAT_AREA])
+        blobs = sorted((cv2.boundingRect(outline) for outline in outlines),
+                       key=lambda box: -box[2] * box[3])
+        blobs = [box for box in blobs if box[2] * box[3] >= min_area]
         found: list[tuple[int, Detection]] = []
-        for x, y, w, h, _ in blobs[:_MAX_CANDIDATES]:
+        for x, y, w, h in blobs[:_MAX_CANDIDATES]:
             # Already explained by a ball found from a larger blob (its other half)?
             cu, cv_ = (x + w / 2) * _COARSE_SCALE, (y + h / 2) * _COARSE_SCALE
             if any(math.hypot(cu - d.u, cv_ - d.v) < d.radius for _, d in found):
@@ -324,6 +328,15 @@ def _circles_through(triples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return centres, np.hypot(ox, oy)
 
 
+def least_squares_step(jacobian: np.ndarray, residual: np.ndarray) -> np.ndarray:
+    """Return the Gauss-Newton step that minimises |jacobian @ step + residual|."""
+    normal = jacobian.T @ jacobian
+    try:
+        return np.linalg.solve(normal, -(jacobian.T @ residual))
+    except np.linalg.LinAlgError:  # degenerate points: least squares still answers
+        return np.linalg.lstsq(jacobian, -residual, rcond=None)[0]
+
+
 def _fit_circle(points: np.ndarray, start: tuple[float, float, float]
                 ) -> tuple[float, float, float]:
     """Geometric least-squares circle fit (Gauss-Newton from ``start``)."""
@@ -332,7 +345,7 @@ def _fit_circle(points: np.ndarray, start: tuple[float, float, float]
         dx, dy = points[:, 0] - u, points[:, 1] - v
         distance = np.maximum(np.hypot(dx, dy), 1e-9)
         jacobian = np.column_stack([-dx / distance, -dy / distance, -np.ones(len(points))])
-        step, *_ = np.linalg.lstsq(jacobian, -(distance - r), rcond=None)
+        step = least_squares_step(jacobian, distance - r)
         u, v, r = u + step[0], v + step[1], r + step[2]
         if abs(step).max() < 1e-3:
             break

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ur_rg2_vision.detector import Detection
+from ur_rg2_vision.detector import Detection, least_squares_step
 
 _CORE = 0.85  # use pixels within this fraction of the circle radius (the rim mixes depths)
 _MIN_POINTS = 6
@@ -112,6 +112,4 @@ def _gauss_newton_step(points: np.ndarray, centre: np.ndarray, radius: float) ->
     """One Gauss-Newton step of min sum (|p - c| - radius)^2 over the centre c."""
     offset = centre - points
     distance = np.maximum(np.linalg.norm(offset, axis=1), 1e-9)
-    jacobian = offset / distance[:, None]
-    step, *_ = np.linalg.lstsq(jacobian, -(distance - radius), rcond=None)
-    return centre + step
+    return centre + least_squares_step(offset / distance[:, None], distance - radius)

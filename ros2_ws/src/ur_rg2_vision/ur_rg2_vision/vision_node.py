@@ -6,14 +6,16 @@ ROS wiring only; the work is done by :mod:`ur_rg2_vision.detector` (colour + sha
 Each colour image is searched for the ball and republished annotated on ``ball/image`` at once;
 its depth image (same stamp, before or after it) completes it, and then ``ball/position`` is
 published. A few frames wait for their partner; a colour frame whose depth never comes gets no
-position. Image callbacks run one at a time; ``vision/save_frame`` runs beside them, so a slow
-disk never delays detection.
+position.
+
+All callbacks run one at a time on one thread (rclpy's multi-threaded executor costs twice the
+CPU here and falls behind at 30 Hz): no locks, and a save (~10 ms for both PNGs) simply delays
+the next frame a little.
 """
 
 from collections import OrderedDict
 from dataclasses import dataclass
 import sys
-import threading
 import time
 
 import cv2
@@ -26,9 +28,8 @@ from rcl_interfaces.msg import (
     SetParametersResult,
 )
 import rclpy
-from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import ExternalShutdownException
 from rclpy.logging import get_logger
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -55,7 +56,6 @@ NODE_NAME = 'ur_rg2_vision'
 _IMAGE_QOS = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
 _PENDING_FRAMES = 4  # colour frames waiting for their depth (~130 ms at 30 Hz)
 _EARLY_DEPTHS = 4  # depth images that came before their colour image
-_SAVE_WAIT_S = 0.2  # vision/save_frame waits this long for the latest frame's depth
 _WARN_PERIOD_S = 10.0  # a persisting input problem is logged again after this long
 _DRAW_COLOR = (0, 255, 0)
 
@@ -67,6 +67,7 @@ class _Frame:
     """A colour frame, what was found in it, and its depth once that has come."""
 
     header: Header
+    index: int  # counts colour frames
     rgb: np.ndarray
     detections: list[Detection]
     depth: np.ndarray | None = None
@@ -133,30 +134,27 @@ class VisionNode(Node):
         self._save_every_n = self.get_parameter('save_every_n').value
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
-        # Image-side state, touched by the image callback group only (one callback at a time).
         self._camera: tuple[np.ndarray, tuple[int, int]] | None = None  # k, (width, height)
         self._awaiting_info: _Frame | None = None  # a complete frame without a fitting info
         self._pending: OrderedDict[tuple[int, int], _Frame] = OrderedDict()
         self._early_depths: OrderedDict[tuple[int, int], np.ndarray] = OrderedDict()
         self._color_count = 0
-        # Shared with the save service.
-        self._lock = threading.Lock()
-        self._depth_arrived = threading.Condition(self._lock)
-        self._latest: _Frame | None = None
+        self._latest: _Frame | None = None  # the newest colour frame
+        self._latest_complete: _Frame | None = None  # the newest one with its depth
         self._warned: dict[str, tuple[str, float]] = {}
 
-        images = MutuallyExclusiveCallbackGroup()
-        # camera_info first: of messages ready together, the executor takes it first.
+        # All in the node's default, mutually exclusive callback group: one at a time, under
+        # any executor. camera_info first: of messages ready together, it is taken first.
         self.create_subscription(CameraInfo, 'camera/color/camera_info', self._on_camera_info,
-                                 _IMAGE_QOS, callback_group=images)
-        self.create_subscription(Image, 'camera/color/image_raw', self._on_color, _IMAGE_QOS,
-                                 callback_group=images)
-        self.create_subscription(Image, 'camera/depth/image_raw', self._on_depth, _IMAGE_QOS,
-                                 callback_group=images)
+                                 _IMAGE_QOS)
+        self.create_subscription(Image, 'camera/color/image_raw', self._on_color, _IMAGE_QOS)
+        self.create_subscription(Image, 'camera/depth/image_raw', self._on_depth, _IMAGE_QOS)
         self._position_pub = self.create_publisher(PointStamped, 'ball/position', 10)
         self._image_pub = self.create_publisher(Image, 'ball/image', _IMAGE_QOS)
-        self.create_service(Trigger, 'vision/save_frame', self._on_save_frame,
-                            callback_group=MutuallyExclusiveCallbackGroup())
+        self.create_service(Trigger, 'vision/save_frame', self._on_save_frame)
+        self.get_logger().info(
+            f'looking for the ball in {self.resolve_topic_name("camera/color/image_raw")}; '
+            f'frames are saved to {self._frames_dir!r}')
 
     # -- parameters ---------------------------------------------------------------------------
 
@@ -201,25 +199,25 @@ class VisionNode(Node):
         except ValueError as error:
             self._warn('color', f'colour image ignored: {error}')
             return
-        frame = _Frame(msg.header, rgb, [])
-        k = self._camera[0] if self._info_fits(frame) else None
-        frame.detections = self._config.detector.detect(rgb, k)
+        self._color_count += 1
+        frame = _Frame(msg.header, self._color_count, rgb, [])
+        frame.detections = self._config.detector.detect(
+            rgb, self._camera[0] if self._info_fits(frame) else None)
+        every = self._save_every_n
+        frame.autosave = every > 0 and frame.index % every == 0
+        self._latest = frame
+        key = _stamp_key(msg.header)
+        depth = self._early_depths.pop(key, None)
+        if depth is None:
+            self._pending[key] = frame
+            while len(self._pending) > _PENDING_FRAMES:
+                _, stale = self._pending.popitem(last=False)
+                if stale.autosave:  # its depth never came: save the colour alone
+                    self._autosave(stale)
+        else:
+            self._complete(frame, depth)  # the position before the (slower) image
         if self._image_pub.get_subscription_count() > 0:
             self._image_pub.publish(rgb_to_image(_annotate(rgb, frame.detections), msg.header))
-        self._color_count += 1
-        every = self._save_every_n
-        frame.autosave = every > 0 and self._color_count % every == 0
-        with self._lock:
-            self._latest = frame
-        key = _stamp_key(msg.header)
-        self._pending[key] = frame
-        while len(self._pending) > _PENDING_FRAMES:
-            _, stale = self._pending.popitem(last=False)
-            if stale.autosave:  # its depth never came: save the colour alone
-                self._autosave(stale)
-        depth = self._early_depths.pop(key, None)
-        if depth is not None:
-            self._complete(key, depth)
 
     def _on_depth(self, msg: Image) -> None:
         try:
@@ -228,19 +226,18 @@ class VisionNode(Node):
             self._warn('depth', f'depth image ignored: {error}')
             return
         key = _stamp_key(msg.header)
-        if key in self._pending:
-            self._complete(key, depth)
+        frame = self._pending.pop(key, None)
+        if frame is not None:
+            self._complete(frame, depth)
             return
         self._early_depths[key] = depth
         while len(self._early_depths) > _EARLY_DEPTHS:
             self._early_depths.popitem(last=False)
 
-    def _complete(self, key: tuple[int, int], depth: np.ndarray) -> None:
+    def _complete(self, frame: _Frame, depth: np.ndarray) -> None:
         """Pair a colour frame with its depth: publish the ball's position, autosave."""
-        frame = self._pending.pop(key)
-        with self._lock:
-            frame.depth = depth
-            self._depth_arrived.notify_all()
+        frame.depth = depth
+        self._latest_complete = frame
         if frame.detections and not self._info_fits(frame):
             # Its camera_info may still be on the way: the next camera_info retries it.
             if self._awaiting_info is not None:
@@ -296,14 +293,15 @@ class VisionNode(Node):
 
     def _on_save_frame(self, request: Trigger.Request, response: Trigger.Response
                        ) -> Trigger.Response:
-        with self._lock:
-            frame = self._latest
-            if frame is not None:  # its depth is usually a few milliseconds behind
-                self._depth_arrived.wait_for(lambda: frame.depth is not None, _SAVE_WAIT_S)
+        frame = self._latest
+        complete = self._latest_complete
         if frame is None:
             response.success = False
             response.message = 'no camera frame received yet'
             return response
+        if (frame.depth is None and complete is not None
+                and frame.index - complete.index <= _PENDING_FRAMES):
+            frame = complete  # the newest depth is still on its way: save the newest pair
         try:
             paths = self._save(frame)
         except OSError as error:
@@ -328,14 +326,11 @@ def main(args: list[str] | None = None) -> int:
         get_logger(NODE_NAME).error(f'invalid parameters: {error}')
         rclpy.try_shutdown()
         return 1
-    executor = MultiThreadedExecutor(num_threads=2)
-    executor.add_node(node)
     try:
-        executor.spin()
+        rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
-        executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown()
     return 0

@@ -222,6 +222,18 @@ def test_save_every_n_saves_every_nth_frame(ros_graph, tmp_path):
              f'{sorted(expected)} in {frames}')
 
 
+def test_save_every_n_without_depth_saves_the_colour_alone(ros_graph, tmp_path):
+    rig = start(ros_graph, tmp_path, save_every_n=1)
+    rgb = ball_frame()[0]
+    for sec in range(1, 8):  # a few frames wait for their depth, then give up on it
+        rig.send(sec, rgb)
+        rig.wait_images(sec)
+    frames = tmp_path / 'frames'
+    wait_for(lambda: frames.is_dir() and 'frame_0000000001_250000000_color.png'
+             in os.listdir(frames), TIMEOUT, 'the first colour frame saved alone')
+    assert not [name for name in os.listdir(frames) if 'depth' in name]
+
+
 @pytest.mark.parametrize('bad', [
     'colour_encoding', 'colour_truncated', 'depth_encoding', 'depth_size', 'info_k',
     'info_size'])

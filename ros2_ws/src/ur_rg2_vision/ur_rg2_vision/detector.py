@@ -35,6 +35,7 @@ _MAX_CANDIDATES = 6  # largest coarse blobs refined per frame
 _RANSAC_HYPOTHESES = 96
 _RANSAC_MAX_POINTS = 240  # contour points used to score hypotheses
 _MIN_CONTOUR_POINTS = 8
+_MAX_PIECES = 8  # outlines per window, longest first
 # A contour point lies on the circle within max(_TOL_PX, _TOL_FRACTION * radius) pixels.
 _TOL_PX = 1.0
 _TOL_FRACTION = 0.04
@@ -153,10 +154,13 @@ class BallDetector:
         height, width = rgb.shape[:2]
         mask = self.color.mask(rgb[y0:y1, x0:x1])
         contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-        contours = [c.reshape(-1, 2) + (x0, y0) for c in contours
-                    if len(c) >= _MIN_CONTOUR_POINTS]
+        # The longest outlines only: a ball is in at most a few pieces; this bounds the work
+        # on cluttered frames.
+        contours = sorted((c for c in contours if len(c) >= _MIN_CONTOUR_POINTS),
+                          key=len, reverse=True)[:_MAX_PIECES]
         if not contours:
             return None
+        contours = [c.reshape(-1, 2) + (x0, y0) for c in contours]
         # The image border cuts a ball like an occluder does: its edge is not the ball's.
         borders = [(c[:, 0] <= 0) | (c[:, 0] >= width - 1) | (c[:, 1] <= 0)
                    | (c[:, 1] >= height - 1) for c in contours]

@@ -265,10 +265,7 @@ class VisionNode(Node):
         if not frame.detections:
             return None
         height, width = frame.rgb.shape[:2]
-        if self._camera is None:
-            self._warn('locate', 'no camera/color/camera_info yet: no ball/position')
-            return None
-        k, (info_width, info_height) = self._camera
+        k, (info_width, info_height) = self._camera  # set: see _complete
         if (info_width, info_height) != (width, height):
             self._warn('locate', f'camera_info is for {info_width}x{info_height}, the colour '
                        f'image is {width}x{height}: no ball/position')

@@ -302,11 +302,12 @@ def test_ur3_runs(ros_graph):
     assert probe.get_parameter('robot_model') == 'ur3'
 
 
-def run_sim(*parameters: str) -> subprocess.Popen:
+def run_sim(*parameters: str, domain_id: int = 231) -> subprocess.Popen:
     args = [SIM_BIN, '--ros-args']
     for parameter in parameters:
         args += ['-p', parameter]
-    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', ROS_DOMAIN_ID='231')
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
+               ROS_DOMAIN_ID=str(domain_id))
     return subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
 
 
@@ -351,3 +352,22 @@ def test_signal_stops_the_node_within_two_seconds(sig):
     finally:
         if process.poll() is None:
             process.kill()
+
+
+def test_commands_are_served_while_a_service_waits(ros_graph):
+    """In the sim process, a gripper motion in progress delays neither jogs nor publishing."""
+    process = run_sim('camera_rate:=0.0', domain_id=ros_graph.domain_id)
+    try:
+        probe = Probe(ros_graph)
+        probe.latest('joint_states', timeout=60)
+        client = probe.node.create_client(Trigger, 'gripper/close')
+        wait_for(client.service_is_ready, 30, 'the gripper/close service')
+        closing = client.call_async(Trigger.Request())
+        probe.send(probe.jog, ['wrist_3_joint'], [0.05])
+        probe.wait_positions({'wrist_3_joint': 0.05}, tolerance=math.radians(0.5))
+        assert not closing.done(), 'the jog waited for the gripper to close'
+        wait_for(closing.done, 30, 'the gripper to close')
+        assert closing.result().success
+    finally:
+        process.send_signal(signal.SIGINT)
+        process.communicate(timeout=10)

@@ -13,7 +13,7 @@ from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 import rclpy
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -23,6 +23,7 @@ from std_srvs.srv import Trigger
 
 from ur_rg2_sim.camera import Camera, CameraConfig, Frame
 from ur_rg2_sim.commands import CommandError, finite_vector, in_range, joint_targets
+from ur_rg2_sim.executors import BlockingGroupExecutor
 from ur_rg2_sim.robot_model import ARM_JOINTS, ROBOT_MODELS, RobotModelError
 from ur_rg2_sim.simulation import NS, Schedule, SimulationLoop
 from ur_rg2_sim.world import DEFAULT_BALL_POSITION, JointStateSample, SimWorld, WorldConfig
@@ -159,14 +160,13 @@ class SimNode(Node):
         # Jogs are relative: a burst of key presses must not lose any.
         self.create_subscription(JointState, 'joint_jog', self._on_jog, 100)
         self.create_subscription(JointState, 'joint_command', self._on_command, 100)
-        # Services wait for the simulation; a reentrant group lets them wait side by side
-        # while subscriptions keep being served.
-        services = ReentrantCallbackGroup()
-        self.create_service(Trigger, 'gripper/open', self._on_gripper_open,
-                            callback_group=services)
-        self.create_service(Trigger, 'gripper/close', self._on_gripper_close,
-                            callback_group=services)
-        self.create_service(Trigger, 'reset', self._on_reset, callback_group=services)
+        # Services wait for the simulation: in this reentrant group they may wait side by side
+        # on worker threads (see BlockingGroupExecutor) while subscriptions keep being served.
+        self.blocking_group = ReentrantCallbackGroup()
+        for name, callback in (('gripper/open', self._on_gripper_open),
+                               ('gripper/close', self._on_gripper_close),
+                               ('reset', self._on_reset)):
+            self.create_service(Trigger, name, callback, callback_group=self.blocking_group)
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         self._sim = SimulationLoop(self._world, self, s.schedule(), self._make_camera(s))
@@ -340,10 +340,11 @@ def _camera_info(camera: Camera, header) -> CameraInfo:
 def main(args: Optional[list[str]] = None) -> int:
     """Run the simulator node until Ctrl-C or SIGTERM."""
     rclpy.init(args=args)
-    executor = MultiThreadedExecutor(num_threads=4)
+    executor = BlockingGroupExecutor()
     node = None
     try:
         node = SimNode()
+        executor.add_blocking_group(node.blocking_group)
         executor.add_node(node)
         while rclpy.ok():
             if node.simulation_error is not None:

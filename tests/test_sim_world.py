@@ -105,7 +105,22 @@ def test_camera_intrinsics_follow_the_field_of_view(world):
     fx = camera.k[0, 0]
     assert 2 * math.degrees(math.atan(320 / fx)) == pytest.approx(57.0)
     assert camera.k[1, 1] == fx
-    assert (camera.k[0, 2], camera.k[1, 2]) == (319.5, 239.5)
+
+
+@pytest.mark.parametrize('size', [(640, 480), (101, 77)])
+def test_bodies_render_where_the_intrinsics_project_them(size):
+    sim = SimWorld(WorldConfig(ball_position=(5.0, 5.0, 0.03)))
+    try:
+        camera = Camera(sim, CameraConfig(width=size[0], height=size[1],
+                                          position=(0, 0, 2.0), look_at=(1e-4, 0, 0)))
+        for point in [(0, 0, 0.5), (0.3, 0.2, 0.5), (-0.25, 0.3, 0.7)]:
+            marker = sim.add_sphere(point, 0.02, (1, 0, 0, 1), mass=0)
+            rgb = camera.render().rgb
+            sim.remove_bodies([marker])
+            v, u = np.nonzero((rgb[:, :, 0] > 150) & (rgb[:, :, 1] < 80))
+            assert (u.mean(), v.mean()) == pytest.approx(camera.project(point), abs=0.15)
+    finally:
+        sim.close()
 
 
 def test_depth_is_registered_to_color(world):

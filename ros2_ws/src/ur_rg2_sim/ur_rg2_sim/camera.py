@@ -56,10 +56,13 @@ class Camera:
         self.config = config
         w, h = config.width, config.height
         self.fx = (w / 2) / math.tan(math.radians(config.hfov_deg) / 2)
-        # Square pixels; OpenGL pixel centres sit at i + 0.5, ROS's at integer i.
-        self.fy = self.fx
-        self.cx = (w - 1) / 2
-        self.cy = (h - 1) / 2
+        self.fy = self.fx  # square pixels
+        # Where TinyRenderer really puts the optical axis (measured: a small sphere on the
+        # axis renders at (w/2, h/2 - 1) in ROS pixel coordinates, not at the centre
+        # ((w-1)/2, (h-1)/2) of a symmetric frustum): it samples pixel i at i, not i + 0.5,
+        # and flips rows with an offset of one.
+        self.cx = w / 2
+        self.cy = h / 2 - 1
         self._rotation = optical_rotation(config.position, config.look_at)
         self._position = np.asarray(config.position, dtype=float)
         vfov = math.degrees(2 * math.atan((h / 2) / self.fy))

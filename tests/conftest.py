@@ -3,13 +3,17 @@
 from collections.abc import Callable, Iterator
 import itertools
 import os
+from pathlib import Path
 import threading
 import time
 
 import pytest
 
-# Keep every byte of DDS traffic on this host, before rclpy is imported anywhere.
+# Keep every byte of DDS traffic on this host, before rclpy is imported anywhere, with the
+# transports the run command uses (subprocesses inherit both).
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+os.environ.setdefault('FASTRTPS_DEFAULT_PROFILES_FILE',
+                      str(Path(__file__).parents[1] / 'config' / 'fastdds.xml'))
 
 import rclpy  # noqa: E402
 from rclpy.context import Context  # noqa: E402

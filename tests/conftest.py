@@ -17,8 +17,8 @@ os.environ.setdefault('FASTRTPS_DEFAULT_PROFILES_FILE',
 
 import rclpy  # noqa: E402
 from rclpy.context import Context  # noqa: E402
-from rclpy.executors import MultiThreadedExecutor  # noqa: E402
 from rclpy.node import Node  # noqa: E402
+from ur_rg2_sim.executors import BlockingGroupExecutor  # noqa: E402
 
 # Fast DDS supports domain ids 0-232; spread concurrent pytest runs by pid.
 _domain_ids = itertools.count((os.getpid() * 37) % 200)
@@ -43,13 +43,19 @@ def wait_for(predicate: Callable[[], object], timeout: float, what: str,
 
 
 class RosGraph:
-    """Nodes of one test, on a private context and domain, spun by a background executor."""
+    """Nodes of one test, on a private context and domain, spun by a background executor.
+
+    Callbacks run on the spinning thread, except those of groups registered with
+    ``graph.executor.add_blocking_group`` (callbacks that wait, such as the sim's services).
+    """
 
     def __init__(self) -> None:
         self.domain_id = next_domain_id()
         self.context = Context()
         rclpy.init(context=self.context, domain_id=self.domain_id)
-        self.executor = MultiThreadedExecutor(num_threads=4, context=self.context)
+        # Not rclpy's MultiThreadedExecutor: its callback dispatch starves other Python
+        # threads (an in-process sim then ran at a third of its real-time factor).
+        self.executor = BlockingGroupExecutor(context=self.context)
         self._thread = threading.Thread(target=self._spin, daemon=True)
         self._thread.start()
         self._nodes: list[Node] = []
@@ -102,4 +108,6 @@ def start_sim(graph: RosGraph, **parameters) -> Node:
     from ur_rg2_sim.sim_node import SimNode
 
     overrides = [Parameter(name, value=value) for name, value in parameters.items()]
-    return graph.add(SimNode(context=graph.context, parameter_overrides=overrides))
+    node = SimNode(context=graph.context, parameter_overrides=overrides)
+    graph.executor.add_blocking_group(node.blocking_group)
+    return graph.add(node)

@@ -16,7 +16,6 @@ import os
 from pathlib import Path
 import random
 import select
-import signal
 import statistics
 import subprocess
 import sys
@@ -29,6 +28,8 @@ from rclpy.context import Context
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
+
+from bench.processes import bench_env, node_process
 
 TRIALS = 200  # p99 then rests on the two slowest, not on one outlier
 WARMUP_TRIALS = 5
@@ -122,23 +123,6 @@ def _keys_terminal(env: dict[str, str], log: Path) -> Iterator[int]:
 
 
 @contextmanager
-def _sim(env: dict[str, str], log: Path) -> Iterator[None]:
-    with log.open('wb') as out:
-        process = subprocess.Popen(
-            [str(Path(sys.executable).with_name('sim')), '--ros-args', '-p', 'camera_rate:=0.0'],
-            env=env, stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT)
-    try:
-        yield
-    finally:
-        process.send_signal(signal.SIGINT)
-        try:
-            process.wait(10)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            process.wait()
-
-
-@contextmanager
 def _probe(domain_id: int) -> Iterator[_Probe]:
     context = Context()
     rclpy.init(context=context, domain_id=domain_id)
@@ -195,10 +179,9 @@ def _percentile(samples: list[float], p: int) -> float:
 def run() -> list[tuple[str, str, str]]:
     """Measure the teleop; return benchmark rows (metric, measured, target)."""
     domain_id = 150 + os.getpid() % 80
-    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id))
+    env = bench_env(domain_id)
     with tempfile.TemporaryDirectory(prefix='teleop-bench-') as tmp, \
-            _sim(env, Path(tmp, 'sim.log')), \
+            node_process('sim', {'camera_rate': '0.0'}, domain_id, ready='simulating'), \
             _probe(domain_id) as probe, \
             _keys_terminal(env, Path(tmp, 'keys.log')) as master:
         _connect(probe, master)

@@ -105,17 +105,23 @@ class ViewerNode(Node):
 def main(args: list[str] | None = None) -> int:
     """Run the viewer until Ctrl-C / SIGTERM; exit code 1 when the port cannot be bound."""
     rclpy.init(args=args)
+    node = None
     try:
-        node = ViewerNode()
-    except OSError:
-        rclpy.try_shutdown()
-        return 1
-    try:
+        try:
+            node = ViewerNode()
+        except OSError:
+            return 1  # the port cannot be bound; the node has logged why
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except Exception:
+        # SIGINT/SIGTERM shut the context down; during start-up or mid-spin that surfaces as
+        # an RCLError, which is no error of ours.
+        if rclpy.ok():
+            raise
     finally:
-        node.destroy_node()
+        if node is not None:
+            node.destroy_node()
         rclpy.try_shutdown()
     return 0
 

@@ -317,18 +317,23 @@ class VisionNode(Node):
 def main(args: list[str] | None = None) -> int:
     """Run the node until Ctrl-C / SIGTERM; exit code 1 on invalid parameters."""
     rclpy.init(args=args)
+    node = None
     try:
         node = VisionNode()
+        rclpy.spin(node)
     except (ValueError, ParameterException) as error:
         get_logger(NODE_NAME).error(f'invalid parameters: {error}')
-        rclpy.try_shutdown()
         return 1
-    try:
-        rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except Exception:
+        # SIGINT/SIGTERM shut the context down; during start-up or mid-spin that surfaces as
+        # an RCLError, which is no error of ours.
+        if rclpy.ok():
+            raise
     finally:
-        node.destroy_node()
+        if node is not None:
+            node.destroy_node()
         rclpy.try_shutdown()
     return 0
 

@@ -187,11 +187,12 @@ def main(args: list[str] | None = None) -> int:
         print(f'keys: {error}', file=sys.stderr)
         return USAGE_ERROR
     finally:
-        # Context first: that wakes the spinner, whose wait set must be gone before the node.
-        rclpy.try_shutdown()
+        # Executor first: its guard condition ends the spinner's wait cleanly. Shutting the
+        # context down under a waiting spinner thread could crash it (SIGSEGV seen on quit).
+        executor.shutdown()
         if spinner.is_alive():
-            spinner.join()
+            spinner.join(timeout=5.0)
         if node is not None:
             node.destroy_node()
-        executor.shutdown()
+        rclpy.try_shutdown()
     return 0

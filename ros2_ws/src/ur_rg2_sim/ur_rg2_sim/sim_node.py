@@ -179,9 +179,12 @@ class SimNode(Node):
     def destroy_node(self) -> None:
         """Stop the simulation thread and release pybullet."""
         self._sim.stop()
-        self.get_logger().info(self._sim.summary())
         self._world.close()
+        logger = self.get_logger()
         super().destroy_node()
+        # Logged after the node is gone: its rosout publisher may already be dead (a signal
+        # shuts the context down first), and this line is for the console anyway.
+        logger.info(self._sim.summary())
 
     @property
     def simulation_error(self) -> Optional[BaseException]:

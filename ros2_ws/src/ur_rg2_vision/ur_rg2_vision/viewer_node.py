@@ -11,13 +11,12 @@ import sys
 
 from geometry_msgs.msg import PointStamped
 from rcl_interfaces.msg import IntegerRange, ParameterDescriptor
-import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image, JointState
 
 from ur_rg2_vision.ros_image import image_to_rgb
+from ur_rg2_vision.spin import run_node
 from ur_rg2_vision.viewer_web import FrameHub, ViewerServer, finite_or_none, joint_summary
 
 NODE_NAME = 'ur_rg2_viewer'
@@ -55,9 +54,8 @@ class ViewerNode(Node):
         try:
             self._server.start()
         except OSError as error:
-            self.get_logger().error(f'cannot serve on {address} port {port}: {error}')
             self.destroy_node()
-            raise
+            raise OSError(f'cannot serve on {address} port {port}: {error}') from error
 
         # Reliable: across processes best effort loses most 640x480 frames here. Depth 5 as
         # the sim and vision use: a busy moment (GIL, a loaded machine) must not drop frames;
@@ -104,26 +102,7 @@ class ViewerNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Run the viewer until Ctrl-C / SIGTERM; exit code 1 when the port cannot be bound."""
-    rclpy.init(args=args)
-    node = None
-    try:
-        try:
-            node = ViewerNode()
-        except OSError:
-            return 1  # the port cannot be bound; the node has logged why
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception:
-        # SIGINT/SIGTERM shut the context down; during start-up or mid-spin that surfaces as
-        # an RCLError, which is no error of ours.
-        if rclpy.ok():
-            raise
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run_node(ViewerNode, args, 'ur_rg2_viewer', startup_errors=(OSError,))
 
 
 if __name__ == '__main__':

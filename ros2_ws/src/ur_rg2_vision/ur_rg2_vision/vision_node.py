@@ -27,10 +27,7 @@ from rcl_interfaces.msg import (
     ParameterDescriptor,
     SetParametersResult,
 )
-import rclpy
 from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException
-from rclpy.logging import get_logger
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -48,6 +45,7 @@ from ur_rg2_vision.detector import (
 from ur_rg2_vision.frame_store import save_frame
 from ur_rg2_vision.localize import BallPosition, locate_first
 from ur_rg2_vision.ros_image import camera_matrix, image_to_depth, image_to_rgb, rgb_to_image
+from ur_rg2_vision.spin import run_node
 
 NODE_NAME = 'ur_rg2_vision'
 
@@ -316,26 +314,7 @@ class VisionNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Run the node until Ctrl-C / SIGTERM; exit code 1 on invalid parameters."""
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = VisionNode()
-        rclpy.spin(node)
-    except (ValueError, ParameterException) as error:
-        get_logger(NODE_NAME).error(f'invalid parameters: {error}')
-        return 1
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception:
-        # SIGINT/SIGTERM shut the context down; during start-up or mid-spin that surfaces as
-        # an RCLError, which is no error of ours.
-        if rclpy.ok():
-            raise
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run_node(VisionNode, args, NODE_NAME, startup_errors=(ValueError, ParameterException))
 
 
 if __name__ == '__main__':

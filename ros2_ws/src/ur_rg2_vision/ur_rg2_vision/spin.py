@@ -1,0 +1,38 @@
+"""Process entry point shared by the package's nodes: create, spin, shut down cleanly."""
+
+from collections.abc import Callable
+
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.logging import get_logger
+from rclpy.node import Node
+
+
+def run_node(make_node: Callable[[], Node], args: list[str] | None, logger_name: str,
+             startup_errors: tuple[type[BaseException], ...] = ()) -> int:
+    """Create a node and spin it until Ctrl-C or SIGTERM; return the process exit code.
+
+    An exception of ``startup_errors`` raised while creating the node (a bad parameter, a busy
+    port) is logged as one line and gives exit code 1, with no traceback.
+    """
+    rclpy.init(args=args)
+    node = None
+    try:
+        try:
+            node = make_node()
+        except startup_errors as error:
+            get_logger(logger_name).error(f'cannot start: {error}')
+            return 1
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except Exception:
+        # SIGINT/SIGTERM shut the context down; during start-up or mid-spin that surfaces as
+        # an RCLError, which is no error of ours.
+        if rclpy.ok():
+            raise
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0

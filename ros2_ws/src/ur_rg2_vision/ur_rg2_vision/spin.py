@@ -3,7 +3,7 @@
 from collections.abc import Callable
 
 import rclpy
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.logging import get_logger
 from rclpy.node import Node
 
@@ -16,6 +16,9 @@ def run_node(make_node: Callable[[], Node], args: list[str] | None, logger_name:
     port) is logged as one line and gives exit code 1, with no traceback.
     """
     rclpy.init(args=args)
+    # Before the node: an executor created after a signal has shut the context down fails
+    # half-built and prints a traceback from its __del__.
+    executor = SingleThreadedExecutor()
     node = None
     try:
         try:
@@ -23,7 +26,8 @@ def run_node(make_node: Callable[[], Node], args: list[str] | None, logger_name:
         except startup_errors as error:
             get_logger(logger_name).error(f'cannot start: {error}')
             return 1
-        rclpy.spin(node)
+        executor.add_node(node)
+        executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except Exception:
@@ -32,6 +36,7 @@ def run_node(make_node: Callable[[], Node], args: list[str] | None, logger_name:
         if rclpy.ok():
             raise
     finally:
+        executor.shutdown()
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()

@@ -50,13 +50,6 @@ class ViewerNode(Node):
             integer_range=[IntegerRange(from_value=1, to_value=100)])).value
 
         self._hub = FrameHub(quality)
-        self._server = ViewerServer(self._hub, address, port)
-        try:
-            self._server.start()
-        except OSError as error:
-            self.destroy_node()
-            raise OSError(f'cannot serve on {address} port {port}: {error}') from error
-
         # Reliable: across processes best effort loses most 640x480 frames here. Depth 5 as
         # the sim and vision use: a busy moment (GIL, a loaded machine) must not drop frames;
         # the hub keeps only the newest anyway.
@@ -64,6 +57,15 @@ class ViewerNode(Node):
                                  QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE))
         self.create_subscription(JointState, 'joint_states', self._on_joint_state, 10)
         self.create_subscription(PointStamped, 'ball/position', self._on_ball, 10)
+
+        # Last, so that nothing before it can fail (e.g. a signal mid-construction) and leave
+        # the server thread running with no node to stop it.
+        self._server = ViewerServer(self._hub, address, port)
+        try:
+            self._server.start()
+        except OSError as error:
+            self.destroy_node()
+            raise OSError(f'cannot serve on {address} port {port}: {error}') from error
 
         if not _is_loopback(address):
             self.get_logger().warning(

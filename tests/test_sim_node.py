@@ -15,6 +15,7 @@ import numpy as np
 import pybullet
 import pytest
 from rcl_interfaces.msg import Log
+from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.srv import GetParameters, SetParameters
 from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock
@@ -96,8 +97,7 @@ class Probe:
     def get_parameter(self, name: str):
         request = GetParameters.Request(names=[name])
         value = self.call('ur_rg2_sim/get_parameters', GetParameters, request).values[0]
-        return Parameter.from_parameter_msg(
-            type('P', (), {'name': name, 'value': value})()).value
+        return Parameter.from_parameter_msg(ParameterMsg(name=name, value=value)).value
 
     def warnings(self) -> list[str]:
         return [m.msg for m in self.messages('/rosout') if m.level >= Log.WARN]

@@ -304,10 +304,8 @@ class SimNode(Node):
         values.update({p.name: p.value for p in parameters})
         try:
             settings = SimSettings.from_values(values)
-        except CommandError as error:
+        except (TypeError, ValueError) as error:  # CommandError is a ValueError
             self.get_logger().warning(f'parameter change rejected: {error}')
-            return SetParametersResult(successful=False, reason=str(error))
-        except (TypeError, ValueError) as error:
             return SetParametersResult(successful=False, reason=str(error))
         previous, self.settings = self.settings, settings
         if settings.ball_position != previous.ball_position:

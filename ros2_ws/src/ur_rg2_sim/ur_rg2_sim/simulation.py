@@ -90,11 +90,6 @@ class SimulationLoop:
         if self._thread.is_alive() and self._thread is not threading.current_thread():
             self._thread.join(timeout)
 
-    @property
-    def running(self) -> bool:
-        """Return whether the simulation thread is alive."""
-        return self._thread.is_alive()
-
     def summary(self) -> str:
         """Return how much simulation time ran, in how much wall time, and at what speed."""
         wall = time.monotonic() - self.started_at if self.started_at is not None else 0.0

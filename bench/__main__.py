@@ -1,7 +1,8 @@
 """Run every benchmark and print one table: ``python -m bench [name ...]``.
 
-Names: sim, teleop, vision, viewer (default: all). Each module's ``run()`` returns rows of
-(metric, measured, target). The numbers mean most on an otherwise idle machine.
+Names: sim, frames, controllers, teleop, vision, viewer, dataset, motion, setup (default: all).
+Each module's ``run()`` returns rows of (metric, measured, target). The numbers mean most on
+an otherwise idle machine.
 """
 
 import argparse
@@ -9,7 +10,8 @@ import importlib
 import sys
 import time
 
-BENCHMARKS = ('sim', 'teleop', 'vision', 'viewer')
+BENCHMARKS = ('sim', 'frames', 'controllers', 'teleop', 'vision', 'viewer', 'dataset',
+              'motion', 'setup')
 
 
 def print_table(rows: list[tuple[str, str, str]]) -> None:

@@ -3,7 +3,11 @@
 1. Detection: the node's per-frame work (find the ball, confirm and locate it with depth) on
    640x480 frames rendered by the sim: the ball near and far, partly hidden by the gripper,
    next to a red cube, and no ball.
-2. Pipeline: ``vision`` runs as its own process on a private DDS domain kept on this host;
+2. Sizes: on seeded frames rendered by the sim (:mod:`ur_rg2_vision.scenes`), one red ball of
+   1.5-8 cm radius 0.5-2 m away, the node at its defaults (the radius measured): how many are
+   found, how far off their centre and radius are, and the time per frame; and frames of red
+   cubes, boxes, flat patches and balls of other colours, in which no ball may be found.
+3. Pipeline: ``vision`` runs as its own process on a private DDS domain kept on this host;
    this process publishes a rendered frame (colour, camera_info, depth, stamped now) at 30 Hz
    and subscribes to ``ball/position`` and ``ball/image`` like the viewer does. Latency is the
    colour stamp to ``ball/position`` arriving here, so it includes both transports and this
@@ -34,6 +38,10 @@ WARMUP_S = 3.0
 WINDOW_S = 15.0
 START_TIMEOUT_S = 60.0
 REPEATS = 40  # timings per rendered frame
+SIZED_BALLS = 300
+NOT_BALLS = 150
+SIZED_REPEATS = 3
+SEED = 2026
 FRAME_ID = 'camera_color_optical_frame'
 QOS = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
 
@@ -85,9 +93,34 @@ def _detection_times(frames: list) -> list[float]:
     for _ in range(REPEATS):
         for rgb, depth, k in frames:
             start = time.perf_counter()
-            locate_first(detector.detect(rgb, k), depth, k, 0.03)
+            locate_first(detector.detect(rgb, k), depth, k)
             times.append(1000 * (time.perf_counter() - start))
     return times
+
+
+def _sizes() -> dict[str, list]:
+    """Run the node's per-frame work on the seeded frames of balls and of things not balls."""
+    from ur_rg2_vision.detector import BallDetector
+    from ur_rg2_vision.localize import locate_first
+    from ur_rg2_vision.scenes import no_balls, sized_balls
+
+    detector = BallDetector()
+    result = {'missed': [], 'errors': [], 'radius_errors': [], 'times': [], 'false': []}
+    for shot in sized_balls(SIZED_BALLS, SEED):  # one at a time: 2 MB each
+        for _ in range(SIZED_REPEATS):
+            start = time.perf_counter()
+            position = locate_first(detector.detect(shot.rgb, shot.k), shot.depth, shot.k)
+            result['times'].append(1000 * (time.perf_counter() - start))
+        if position is None:
+            result['missed'].append(shot.name)
+            continue
+        centre = np.array([position.x, position.y, position.z])
+        result['errors'].append(1000 * np.linalg.norm(centre - shot.centre))
+        result['radius_errors'].append(1000 * abs(position.radius - shot.radius))
+    for shot in no_balls(NOT_BALLS, SEED + 1):
+        if locate_first(detector.detect(shot.rgb, shot.k), shot.depth, shot.k) is not None:
+            result['false'].append(shot.name)
+    return result
 
 
 class _Feeder:
@@ -204,11 +237,26 @@ def run() -> list[tuple[str, str, str]]:
     """Measure the vision node; return benchmark rows (metric, measured, target)."""
     frames, default = _render_frames()
     times = _detection_times(frames)
+    sizes = _sizes()
     result = _pipeline(default)
     sent, positions, images = result['sent'], result['positions'], result['images']
+    found = SIZED_BALLS - len(sizes['missed'])
+    errors, radius_errors = sizes['errors'], sizes['radius_errors']
     return [
         ('vision: detection + 3D per 640x480 frame, ms p50 / p95',
          f'{percentile(times, 50):.1f} / {percentile(times, 95):.1f}', 'p95 <= 5 ms'),
+        ('vision: balls of 1.5-8 cm at 0.5-2 m found, radius measured',
+         f'{found} of {SIZED_BALLS} ({100 * found / SIZED_BALLS:.1f}%)', '>= 98%'),
+        ('vision: false balls (red cubes, boxes, flat patches, other colours)',
+         f'{len(sizes["false"])} of {NOT_BALLS}', '0'),
+        ('vision: balls of 1.5-8 cm, 3D error, mm median / p95',
+         f'{percentile(errors, 50):.2f} / {percentile(errors, 95):.2f}', '<= 3 / <= 8 mm'),
+        ('vision: balls of 1.5-8 cm, radius error, mm median / p95',
+         f'{percentile(radius_errors, 50):.2f} / {percentile(radius_errors, 95):.2f}',
+         'median <= 2 mm'),
+        ('vision: balls of 1.5-8 cm, detection + 3D per frame, ms p50 / p95',
+         f'{percentile(sizes["times"], 50):.1f} / {percentile(sizes["times"], 95):.1f}',
+         'p95 <= 5 ms'),
         ('vision: colour stamp -> ball/position in another process, ms p50 / p95',
          f'{result["p50"]:.1f} / {result["p95"]:.1f}', 'p95 <= 15 ms'),
         ('vision: frames processed, fed at 30 Hz (ball/position, ball/image)',

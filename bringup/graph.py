@@ -10,6 +10,7 @@ import sys
 
 from ament_index_python.packages import PackageNotFoundError, get_package_prefix
 
+from bringup.parameters import ParameterCheck, Requested
 from bringup.supervisor import ProcessSpec, Supervisor
 
 
@@ -31,6 +32,7 @@ class Node:
 GRAPH: tuple[Node, ...] = (
     Node('sim', 'ur_rg2_sim', 'sim', 'ur_rg2_sim'),
     Node('vision', 'ur_rg2_vision', 'vision', 'ur_rg2_vision'),
+    Node('motion', 'ur_rg2_motion', 'motion', 'ur_rg2_motion'),
     Node('viewer', 'ur_rg2_vision', 'viewer', 'ur_rg2_viewer'),
     Node('keys', 'ur_rg2_teleop', 'keys', 'ur_rg2_teleop', interactive=True),
 )
@@ -38,16 +40,19 @@ GRAPH: tuple[Node, ...] = (
 USAGE = """\
 usage: scripts/run [--headless] [NAME:=VALUE ...] [NODE:NAME:=VALUE ...] [--ros-args ARGS ...]
 
-Start the UR + RG2 node graph: the simulator (sim), the ball detector (vision) and the
-browser view (viewer: open http://127.0.0.1:8080/) as separate processes and, when standard
-input is a terminal, the keyboard teleop (keys) in the foreground. Quit with p or Ctrl-C in
-keys; everything stops with it. Without a terminal (piped, CI, a service manager) sim, vision
-and viewer run headless until SIGINT or SIGTERM. If any process dies, the others are stopped
-and the exit status is 1. Nodes are stopped with SIGTERM, then SIGKILL after 5 s.
+Start the UR + RG2 node graph: the simulator (sim), the ball detector (vision), Cartesian
+control and the ball pick (motion) and the browser view (viewer: open http://127.0.0.1:8080/)
+as separate processes and, when standard input is a terminal, the keyboard teleop (keys) in
+the foreground. Quit with p or Ctrl-C in keys; everything stops with it. Without a terminal
+(piped, CI, a service manager) sim, vision, motion and viewer run headless until SIGINT or
+SIGTERM. If any process dies, the others are stopped
+and the exit status is 1; the last line repeats the error it logged last. Nodes are stopped
+with SIGTERM, then SIGKILL after 5 s.
 
 parameters:
   NAME:=VALUE       a ROS parameter for every node; each node takes the ones it declares
-                    (e.g. robot_model:=ur3 gui:=true camera_rate:=15.0 frames_dir:=/tmp/f)
+                    (e.g. robot_model:=ur3 gui:=true camera_rate:=15.0 frames_dir:=/tmp/f);
+                    one that no node declares is reported once the nodes are up
   NODE:NAME:=VALUE  a parameter for one node only; NODE is {short} or a ROS node name
                     (e.g. sim:camera_rate:=15.0, ur_rg2_teleop:step_deg:=2.0)
   VALUE is YAML, as for ros2 run: true, 15.0, ur3, "[0.5, 0.0, 0.03]"
@@ -71,6 +76,15 @@ class Options:
     headless: bool
     ros_args: list[str]
     help: bool = False
+    parameters: tuple[Requested, ...] = ()
+    """Every parameter given (``NAME:=VALUE``, ``NODE:NAME:=VALUE``, ``-p`` after --ros-args)."""
+
+
+def _requested(assignment: str) -> Requested | None:
+    """Return the parameter of a ``-p`` argument (``[NODE:]NAME:=VALUE``), None if malformed."""
+    name, sep, _ = assignment.partition(':=')
+    node, _, param = name.rpartition(':')
+    return Requested(node, param) if sep and param else None
 
 
 def parse_args(argv: Sequence[str], graph: Sequence[Node] = GRAPH) -> Options:
@@ -78,11 +92,14 @@ def parse_args(argv: Sequence[str], graph: Sequence[Node] = GRAPH) -> Options:
     aliases = {node.name: node.node_name for node in graph}
     headless = False
     ros_args: list[str] = []
+    parameters: list[Requested] = []
     args = list(argv)
     while args:
         arg = args.pop(0)
         if arg == '--ros-args':
             ros_args += args
+            parameters += [requested for flag, value in zip(args, args[1:], strict=False)
+                           if flag in ('-p', '--param') and (requested := _requested(value))]
             break
         if arg in ('-h', '--help'):
             return Options(headless=headless, ros_args=ros_args, help=True)
@@ -94,11 +111,12 @@ def parse_args(argv: Sequence[str], graph: Sequence[Node] = GRAPH) -> Options:
             if not param or (sep and not node):
                 raise UsageError(f'{arg!r}: expected NAME:=VALUE or NODE:NAME:=VALUE')
             # rcl applies "node:param:=value" to that node only; translate the short names.
-            target = f'{aliases.get(node, node)}:' if sep else ''
-            ros_args += ['-p', f'{target}{param}:={value}']
+            target = aliases.get(node, node) if sep else ''
+            ros_args += ['-p', f'{target}{sep}{param}:={value}']
+            parameters.append(Requested(target, param))
         else:
             raise UsageError(f'unknown argument {arg!r}')
-    return Options(headless=headless, ros_args=ros_args)
+    return Options(headless=headless, ros_args=ros_args, parameters=tuple(parameters))
 
 
 def find_executable(package: str, executable: str) -> str:
@@ -148,4 +166,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         why = '--headless' if options.headless else 'no terminal on standard input'
         print(f'bringup: {why}: running {", ".join(n.name for n in nodes)} headless; '
               'stop with Ctrl-C or SIGTERM', file=sys.stderr, flush=True)
-    return Supervisor(specs).run()
+    check = None
+    if options.parameters:
+        check = ParameterCheck(options.parameters, [node.node_name for node in nodes],
+                               options.ros_args, _report)
+    try:
+        return Supervisor(specs, on_started=check and check.start,
+                          on_stopping=check and check.stop).run()
+    finally:
+        if check is not None:
+            check.join()
+
+
+def _report(message: str) -> None:
+    print(f'bringup: {message}', file=sys.stderr, flush=True)

@@ -10,16 +10,19 @@ import os
 from pathlib import Path
 import pty
 import re
+import select
 import signal
 import subprocess
 import sys
 import termios
+import threading
 import time
 
 from conftest import wait_for
 import pytest
 
 from bringup.graph import GRAPH, UsageError, find_executable, parse_args
+from bringup.parameters import Requested, query_declared, unknown_parameters
 from bringup.supervisor import describe_exit
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -34,6 +37,15 @@ signal.signal(signal.SIGINT, quit)
 if mode == 'exit':
     time.sleep(float(arg))
     sys.exit(3)
+if mode == 'fail':  # logs like a ROS node that gives up (rcutils colours errors on a terminal)
+    print(f'[INFO] [1.0] [stub]: terminal: {os.isatty(1)} {os.isatty(2)}')
+    sys.stderr.write('[ERROR] [1.1] [stub]: a first problem\n'
+                     '\x1b[31m[FATAL] [1.2] [stub]: the reason\x1b[0m\n')
+    print('[INFO] [1.3] [stub]: giving up')
+    time.sleep(float(arg))
+    sys.exit(2)
+if mode == 'say':
+    print('[INFO] [1.0] [stub]: up and running')
 if mode == 'kill9':
     time.sleep(float(arg))
     os.kill(os.getpid(), signal.SIGKILL)
@@ -100,8 +112,8 @@ class Graph:
                   'foreground': name == foreground}
                  for name, mode in modes.items()]
         self.proc = subprocess.Popen([sys.executable, '-c', DRIVER, json.dumps(specs)],
-                                     cwd=ROOT, stderr=subprocess.PIPE, text=True,
-                                     **popen_kwargs)
+                                     cwd=ROOT, text=True,
+                                     **{'stderr': subprocess.PIPE, **popen_kwargs})
 
     def pids(self, name: str) -> list[int]:
         """Wait until stand-in ``name`` is ready; return its pid (and its grandchild's)."""
@@ -112,7 +124,7 @@ class Graph:
     def finish(self, timeout: float = 20.0) -> tuple[int, str]:
         """Wait for the supervisor to exit; return its status and what it printed."""
         try:
-            _, err = self.proc.communicate(timeout=timeout)
+            self.out, err = self.proc.communicate(timeout=timeout)
         finally:
             self.proc.kill()
         return self.proc.returncode, err
@@ -131,6 +143,57 @@ def test_a_dying_process_stops_the_others_and_says_why(tmp_path):
     assert code == 1, err
     assert 'vision exited with code 3: stopping sim, viewer' in err
     assert_all_gone(pids, tmp_path)
+
+
+def test_the_summary_repeats_the_last_error_line_of_the_process_that_died(tmp_path):
+    graph = Graph(tmp_path, {'sim': 'fail 0.5', 'vision': 'run'}, stdout=subprocess.PIPE)
+    pids = graph.pids('vision')
+    code, err = graph.finish()
+    assert code == 1, err
+    # Its output passes through unchanged, each stream to the same stream of the supervisor.
+    assert '[INFO] [1.0] [stub]: terminal: False False\n' in graph.out
+    assert '[INFO] [1.3] [stub]: giving up\n' in graph.out
+    assert '[ERROR] [1.1] [stub]: a first problem\n\x1b[31m[FATAL] [1.2]' in err
+    assert 'sim exited with code 2: stopping vision' in err
+    assert err.splitlines()[-1] == (
+        'bringup: sim exited with code 2: [FATAL] [1.2] [stub]: the reason')
+    assert_all_gone(pids, tmp_path)
+
+
+def test_output_passes_through_as_it_comes(tmp_path):
+    graph = Graph(tmp_path, {'sim': 'say'}, stdout=subprocess.PIPE)
+    pids = graph.pids('sim')
+    ready, _, _ = select.select([graph.proc.stdout], [], [], 20.0)
+    assert ready and graph.proc.stdout.readline() == '[INFO] [1.0] [stub]: up and running\n'
+    assert alive(pids[0])  # not held back until it ends
+    graph.proc.send_signal(signal.SIGTERM)
+    code, err = graph.finish()
+    assert code == 0, err
+    assert 'stub' not in err  # no error line, no summary of one
+    assert_all_gone(pids, tmp_path)
+
+
+def test_on_a_terminal_processes_still_write_to_a_terminal(tmp_path):
+    # One terminal per stream: two streams copied to one terminal interleave at any byte.
+    out_controller, out_terminal = open_terminal()
+    err_controller, err_terminal = open_terminal()
+    try:
+        graph = Graph(tmp_path, {'sim': 'fail 0.5', 'vision': 'run'}, stdout=out_terminal,
+                      stderr=err_terminal)
+        graph.proc.wait(timeout=30)
+        os.close(out_terminal)
+        os.close(err_terminal)
+        out = read_terminal(out_controller)
+        err = read_terminal(err_controller)
+    finally:
+        os.close(out_controller)
+        os.close(err_controller)
+        graph.proc.kill()
+    assert graph.proc.returncode == 1, out + err
+    assert '[INFO] [1.0] [stub]: terminal: True True\n' in out
+    assert '\x1b[31m[FATAL] [1.2] [stub]: the reason\x1b[0m\n' in err  # colours kept
+    assert err.splitlines()[-1] == (
+        'bringup: sim exited with code 2: [FATAL] [1.2] [stub]: the reason')
 
 
 def test_a_process_killed_by_a_signal_is_reported_with_the_signal(tmp_path):
@@ -221,6 +284,20 @@ def open_terminal() -> tuple[int, int]:
     return controller, terminal
 
 
+def read_terminal(controller: int) -> str:
+    """Return what was written to a terminal whose other end is closed, with plain newlines."""
+    data = b''
+    while True:
+        try:
+            chunk = os.read(controller, 65536)
+        except OSError:  # EIO: everything has been read
+            break
+        if not chunk:
+            break
+        data += chunk
+    return data.decode(errors='replace').replace('\r\n', '\n')
+
+
 def become_terminal_session_leader() -> None:
     """Pre-exec: a new session with stdin as its terminal, like a login shell's job."""
     os.setsid()
@@ -277,6 +354,12 @@ def test_parameters_go_to_every_node_or_to_the_one_named():
         '-p', 'robot_model:=ur3', '-p', 'ur_rg2_sim:camera_rate:=15.0',
         '-p', 'ur_rg2_teleop:step_deg:=2.0', '-p', 'ball_position:=[0.5, 0.0, 0.03]',
         '-r', '__ns:=/arm1', 'x:=y']
+    assert options.parameters == (
+        Requested('', 'robot_model'), Requested('ur_rg2_sim', 'camera_rate'),
+        Requested('ur_rg2_teleop', 'step_deg'), Requested('', 'ball_position'))
+    tail = parse_args(['--ros-args', '-p', 'gui:=true', '--param', 'ur_rg2_sim:rate:=1',
+                       '-r', 'a:=b', '-p'])
+    assert tail.parameters == (Requested('', 'gui'), Requested('ur_rg2_sim', 'rate'))
     assert parse_args(['gui:=true', '--help']).help
 
 
@@ -321,3 +404,58 @@ def test_run_help_and_bad_arguments():
                              capture_output=True, text=True, timeout=30)
     assert refused.returncode == 2
     assert "unknown argument 'robot_model=ur3'" in refused.stderr
+
+
+SIM = frozenset({'use_sim_time', 'camera_rate', 'camera_width', 'robot_model'})
+VISION = frozenset({'use_sim_time', 'frames_dir', 'save_every_n'})
+
+
+def test_parameters_no_node_declares_are_named_with_a_suggestion():
+    declared = {'ur_rg2_sim': SIM, 'ur_rg2_vision': VISION}
+    requested = [Requested('', 'camera_rte'), Requested('', 'frames_dir'),
+                 Requested('', 'camera_rte'), Requested('ur_rg2_vision', 'camera_rate'),
+                 Requested('ur_rg2_sim', 'camera_rate'), Requested('', 'zzz'),
+                 Requested('ur_rg2_sm', 'camera_rate')]
+    assert unknown_parameters(requested, declared) == [
+        "no node declares parameter 'camera_rte' (did you mean camera_rate?)",
+        "ur_rg2_vision does not declare parameter 'camera_rate'",
+        "no node declares parameter 'zzz'",
+        "no node 'ur_rg2_sm' runs for 'ur_rg2_sm:camera_rate' (did you mean ur_rg2_sim?)",
+    ]
+
+
+def test_nothing_is_said_about_what_a_silent_node_might_take():
+    declared = {'ur_rg2_sim': SIM, 'ur_rg2_vision': None}
+    requested = [Requested('', 'camera_rte'), Requested('ur_rg2_vision', 'camera_rate'),
+                 Requested('ur_rg2_sim', 'frames_dir')]
+    assert unknown_parameters(requested, declared) == [
+        "ur_rg2_sim does not declare parameter 'frames_dir'"]
+
+
+def test_declared_parameters_are_asked_for_and_a_silent_node_does_not_hang(
+        ros_graph, monkeypatch):
+    from rclpy.node import Node
+
+    answering = ros_graph.node('answering', namespace='arm1')
+    answering.declare_parameter('camera_rate', 30.0)
+    # Its parameter services exist, but nothing ever spins it: requests go unanswered.
+    silent = Node('silent', namespace='arm1', context=ros_graph.context)
+    try:
+        monkeypatch.setenv('ROS_DOMAIN_ID', str(ros_graph.domain_id))
+        started = time.monotonic()
+        declared = query_declared(['answering', 'silent', 'absent'], ['-r', '__ns:=/arm1'],
+                                  threading.Event(), timeout=3.0)
+        assert time.monotonic() - started < 10.0
+    finally:
+        silent.destroy_node()
+    assert {'camera_rate', 'use_sim_time'} <= declared['answering']
+    assert declared['silent'] is None and declared['absent'] is None
+
+
+def test_the_parameter_check_stops_when_asked(ros_graph, monkeypatch):
+    monkeypatch.setenv('ROS_DOMAIN_ID', str(ros_graph.domain_id))
+    stop = threading.Event()
+    threading.Timer(0.5, stop.set).start()
+    started = time.monotonic()
+    assert query_declared(['absent'], [], stop, timeout=60.0) == {'absent': None}
+    assert time.monotonic() - started < 10.0

@@ -59,9 +59,11 @@ def test_headless_graph_takes_options_and_stops_on_sigterm(ros_graph, tmp_path):
     with log_path.open('w') as log:
         # No terminal on stdin: headless. The first option goes to every node (only sim
         # declares it), the second to sim alone, frames_dir reaches vision, port the viewer.
+        # The last two no node takes: a typo, and a parameter of another node.
         run = subprocess.Popen(
             [str(ROOT / 'scripts/run'), 'camera_width:=320', 'camera_height:=240',
-             'sim:camera_rate:=10.0', f'frames_dir:={frames}', 'port:=0'],
+             'sim:camera_rate:=10.0', f'frames_dir:={frames}', 'port:=0', 'camera_rte:=15.0',
+             'vision:camera_rate:=5.0'],
             stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=ros_graph.env)
     try:
         # The first run of scripts/run in a fresh clone installs the environment first.
@@ -77,6 +79,13 @@ def test_headless_graph_takes_options_and_stops_on_sigterm(ros_graph, tmp_path):
         assert str(frames) in future.result().message
 
         wait_for(lambda: nodes_ready(probe, interactive=False), 30.0, 'all nodes')
+        wait_for(lambda: 'ur_rg2_vision does not' in log_path.read_text(), 30.0,
+                 'the parameters no node takes')
+        reported = [line for line in log_path.read_text().splitlines()
+                    if 'declare' in line]
+        assert reported == [
+            "bringup: no node declares parameter 'camera_rte' (did you mean camera_rate?)",
+            "bringup: ur_rg2_vision does not declare parameter 'camera_rate'"]
         started = re.search(r'bringup: started (.*)', log_path.read_text()).group(1)
         pids = {name: int(pid) for name, pid in re.findall(r'(\w+) \(pid (\d+)\)', started)}
         assert set(pids) >= {'sim', 'vision'}
@@ -132,3 +141,22 @@ def test_in_a_terminal_keys_runs_in_the_foreground_and_quitting_stops_all(
     for name, pid in pids.items():
         if name != 'keys':
             assert not processes_in_group(pid), f'{name} left processes behind'
+
+
+def test_a_node_that_dies_is_named_with_its_error_on_the_last_line(ros_graph, tmp_path):
+    log_path = tmp_path / 'run.log'
+    with log_path.open('w') as log:
+        run = subprocess.Popen([str(ROOT / 'scripts/run'), 'robot_model:=ur7', 'port:=0'],
+                               stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT,
+                               env=ros_graph.env)
+    try:
+        assert run.wait(timeout=180) == 1, log_path.read_text()
+    finally:
+        run.kill()
+    output = log_path.read_text()
+    # The sim's own FATAL line, then the others' while they stop, then the summary.
+    last = output.splitlines()[-1]
+    assert re.fullmatch(r"bringup: sim exited with code 2: \[FATAL\] \[[\d.]+\] \[ur_rg2_sim\]: "
+                        r".*robot_model.*'ur7'.*", last), output
+    assert output.count(last.split(': ', 2)[2]) == 2  # said by the sim, repeated by bringup
+    assert 'Traceback' not in output

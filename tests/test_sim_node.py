@@ -21,7 +21,7 @@ from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image, JointState
 from std_srvs.srv import Trigger
-from ur_rg2_sim.camera import optical_rotation
+from ur_rg2_sim.camera_pose import optical_rotation
 from ur_rg2_sim.robot_model import ARM_JOINTS
 from ur_rg2_sim.sim_node import IMAGE_QOS
 from ur_rg2_sim.world import SimWorld, WorldConfig
@@ -100,7 +100,11 @@ class Probe:
         return Parameter.from_parameter_msg(ParameterMsg(name=name, value=value)).value
 
     def warnings(self) -> list[str]:
-        return [m.msg for m in self.messages('/rosout') if m.level >= Log.WARN]
+        # One log record per (stamp, text): a /rosout sample delivered twice (seen once under
+        # load) is not a second warning, while a line logged twice has two stamps.
+        records = {(m.stamp.sec, m.stamp.nanosec, m.msg): m.msg for m in self.messages('/rosout')
+                   if m.level >= Log.WARN}
+        return list(records.values())
 
 
 def stamp_ns(msg) -> int:
@@ -193,12 +197,21 @@ def test_absolute_command_clamping_and_reset(ros_graph):
     probe = Probe(ros_graph)
     probe.send(probe.command, ['shoulder_pan_joint', 'wrist_2_joint'], [0.5, -0.7])
     probe.wait_positions({'shoulder_pan_joint': 0.5, 'wrist_2_joint': -0.7})
-    # The UR elbow is limited to +-pi: a target beyond stops there.
-    probe.send(probe.command, ['elbow_joint'], [4.0])
-    probe.wait_positions({'elbow_joint': math.pi})
+    # The UR elbow is limited to +-pi: a target beyond stops there. Folded up, over the upper
+    # arm: folded down, the forearm would stop on the floor first.
+    probe.send(probe.command, ['elbow_joint'], [-4.0])
+    probe.wait_positions({'elbow_joint': -math.pi})
     response = probe.call('reset')
     assert response.success, response.message
     probe.wait_positions(dict.fromkeys(ARM_JOINTS, 0.0))
+
+
+def test_reset_answers_briefly_in_degrees(ros_graph):
+    home = [0.0, -math.pi / 2, 0.0, -math.pi / 2, 0.25, 0.0]
+    start_sim(ros_graph, camera_rate=0.0, real_time_factor=FAST, home_position=home)
+    response = Probe(ros_graph).call('reset')
+    assert response.success, response.message
+    assert response.message == 'arm going home: [0, -90, 0, -90, 14.3, 0] deg'
 
 
 @pytest.mark.parametrize('topic', ['joint_jog', 'joint_command'])
@@ -328,6 +341,7 @@ def read_until(process: subprocess.Popen, text: bytes, timeout: float) -> bytes:
     ('robot_model:=ur7', 'robot_model must be ur5 or ur3'),
     ('physics_rate:=-5.0', 'physics_rate must be between'),
     ('camera_position:=[1.0, 2.0]', 'camera_position needs 3 numbers'),
+    ('camera_rate:=fast', "'camera_rate' to 'fast' of type 'STRING', expecting type 'DOUBLE'"),
 ])
 def test_bad_start_up_parameter_exits_non_zero_with_one_line(parameter, reason):
     process = run_sim(parameter)

@@ -1,6 +1,7 @@
 """Plain unit tests of the teleop's key map, step logic, key splitting and display logic."""
 
 import io
+import math
 import os
 import signal
 import termios
@@ -11,15 +12,22 @@ from ur_rg2_teleop.display import Console, SettleWatcher, arm_values, format_ang
 from ur_rg2_teleop.keymap import (
     BINDINGS,
     MAX_STEP_DEG,
+    MAX_STEP_MM,
     MIN_STEP_DEG,
+    MIN_STEP_MM,
+    STEP_LADDER_MM,
     CallService,
     Command,
     Jog,
+    Mode,
     action_for,
     describe_key,
+    describe_step,
     help_text,
     larger_step,
+    mode_line,
     smaller_step,
+    tool_step,
 )
 from ur_rg2_teleop.terminal import KeyReader, Stop, raw_mode, signal_pipe, split_keys
 
@@ -36,6 +44,8 @@ CONTRACT_OTHERS = {
     'y': CallService('gripper/open'),
     'l': CallService('reset'),
     ' ': CallService('vision/save_frame'),
+    'g': CallService('pick_ball'),
+    'm': Command.MODE,
     '+': Command.STEP_UP,
     '-': Command.STEP_DOWN,
     'h': Command.HELP,
@@ -48,7 +58,7 @@ def test_bindings_are_exactly_the_contract():
     assert BINDINGS == {**CONTRACT_JOGS, **CONTRACT_OTHERS}
 
 
-@pytest.mark.parametrize('key', sorted(CONTRACT_JOGS) + ['t', 'y', 'l', 'h', 'p'])
+@pytest.mark.parametrize('key', sorted(CONTRACT_JOGS) + ['t', 'y', 'l', 'g', 'm', 'h', 'p'])
 def test_upper_case_acts_like_lower_case(key):
     assert action_for(key.upper()) == action_for(key)
 
@@ -87,6 +97,44 @@ def test_help_names_every_key_and_the_step():
 def test_step_ladder(step, larger, smaller):
     assert larger_step(step) == larger
     assert smaller_step(step) == smaller
+
+
+def test_help_in_tool_mode_names_the_axes_the_mode_and_the_steps():
+    text = help_text(7.5, Mode.TOOL, 20.0)
+    assert 'tool mode' in text.splitlines()[0]
+    assert 'q / w' in text and 'TCP along base_link x + / -' in text
+    assert 'c / v' in text and 'TCP about base_link z + / -' in text
+    assert '20 mm' in text and '7.5 deg' in text
+    assert 'switch to joint mode' in text
+    assert 'joint mode' in help_text(5.0).splitlines()[0]
+    assert 'pick the ball' in help_text(5.0)
+
+
+def test_tool_steps_move_along_and_turn_about_base_link_axes():
+    translation, rotation = tool_step(Jog(1, -1), 10.0, 5.0)  # s: -10 mm along y
+    assert translation == pytest.approx((0.0, -0.01, 0.0)) and rotation == (0, 0, 0, 1)
+    translation, rotation = tool_step(Jog(5, 1), 10.0, 90.0)  # c: +90 deg about z
+    assert translation == (0.0, 0.0, 0.0)
+    assert rotation == pytest.approx((0.0, 0.0, math.sin(math.pi / 4), math.cos(math.pi / 4)))
+
+
+def test_mode_line_says_what_the_keys_do():
+    assert mode_line(Mode.TOOL, 5.0, 10.0).startswith('tool mode: q/w a/s z/x move the TCP '
+                                                      '+/- 10 mm')
+    assert mode_line(Mode.JOINT, 5.0, 10.0).startswith('joint mode')
+
+
+def test_millimetre_ladder():
+    assert larger_step(10.0, STEP_LADDER_MM) == 20.0
+    assert smaller_step(1.0, STEP_LADDER_MM) == MIN_STEP_MM
+    assert larger_step(100.0, STEP_LADDER_MM) == MAX_STEP_MM
+    assert describe_step(MAX_STEP_MM, 'mm', STEP_LADDER_MM) == 'step 100 mm (the largest)'
+
+
+def test_the_step_line_names_the_limits():
+    assert describe_step(5.0) == 'step 5 deg'
+    assert describe_step(MAX_STEP_DEG) == 'step 45 deg (the largest)'
+    assert describe_step(MIN_STEP_DEG) == 'step 0.5 deg (the smallest)'
 
 
 def test_steps_stay_within_bounds_however_often_pressed():

@@ -76,7 +76,11 @@ def test_step_keys_change_the_step_parameter_within_bounds(ros_graph):
     wait_for(lambda: len(keys.jogs) == 4, 10.0, 'four joint_jog messages')
     assert [math.degrees(m.position[0]) for m in keys.jogs] == [
         pytest.approx(2.5), pytest.approx(5.0), pytest.approx(-0.5), pytest.approx(-45.0)]
-    assert 'step 45 deg' in keys.lines()
+    steps = [line for line in keys.lines() if line.startswith('step')]
+    # Each press says the step; at a limit, that it is the limit.
+    assert steps[:4] == ['step 5 deg', 'step 2 deg', 'step 1 deg', 'step 0.5 deg (the smallest)']
+    assert steps[11:14] == ['step 1 deg', 'step 2 deg', 'step 5 deg']
+    assert steps[-1] == 'step 45 deg (the largest)'
 
 
 def test_out_of_range_step_is_refused_at_start(ros_graph):
@@ -153,14 +157,14 @@ def test_angles_are_shown_once_when_the_move_is_over(ros_graph):
     try:
         # The pose is shown once at start-up, when the states first come in.
         wait_for(lambda: keys.lines(), 10.0, 'the start-up pose')
-        assert keys.lines()[0].startswith('pan   +0.0  lift  -57.3  elbow  +28.6')
+        assert keys.lines()[0].startswith('joint mode | pan   +0.0  lift  -57.3  elbow  +28.6')
         keys.press('q')
         state['speed'] = 1.0
         time.sleep(0.1)
         assert len(keys.lines()) == 1, 'angles shown while moving'
         state.update(pan=math.radians(5.0), speed=0.0)
         wait_for(lambda: len(keys.lines()) == 2, 10.0, 'the angles after the move')
-        assert keys.lines()[1].startswith('pan   +5.0  lift  -57.3')
+        assert keys.lines()[1].startswith('joint mode | pan   +5.0  lift  -57.3')
         assert keys.lines()[1].endswith('(step 5)')
         time.sleep(0.2)
         assert len(keys.lines()) == 2, 'angles shown more than once per move'

@@ -12,9 +12,11 @@ import termios
 import time
 
 from conftest import wait_for
+from geometry_msgs.msg import TransformStamped
 import pytest
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
 from ur_rg2_sim.sim_node import SimNode
 
 KEYS = str(Path(sys.executable).with_name('keys'))
@@ -223,7 +225,7 @@ def test_signals_exit_0_restoring_the_terminal(keys, signum):
     assert keys.attributes() == keys.initial
 
 
-@pytest.mark.parametrize('value', ['90.0', '2'])
+@pytest.mark.parametrize('value', ['90.0', 'fast'])
 def test_bad_step_parameter_is_a_clear_error(ros_graph, value):
     terminal = KeysTerminal(ros_graph.env, '--ros-args', '-p', f'step_deg:={value}')
     try:
@@ -247,3 +249,46 @@ def test_without_a_terminal_keys_exits_at_once_non_zero(ros_graph):
     assert result.returncode != 0
     assert 'not a terminal' in result.stderr
     assert time.monotonic() - started < 10.0
+
+
+def test_m_switches_to_tool_mode_and_g_picks(ros_graph, keys):
+    """m: the jog keys send tool_jog steps (and back); g calls pick_ball, its answer shown."""
+    node = ros_graph.node('motion_stand_in')
+    jogs: list[TransformStamped] = []
+    node.create_subscription(TransformStamped, 'tool_jog', jogs.append, 10)
+    picks = []
+
+    def pick(_request, response):
+        picks.append(time.monotonic())
+        response.success = True
+        response.message = 'picked the ball at (0.400, -0.300, -0.090) m in base_link in 5.0 s'
+        return response
+
+    node.create_service(Trigger, 'pick_ball', pick)
+    keys.press('m')
+    keys.expect(r'tool mode: q/w a/s z/x move the TCP \+/- 10 mm along base_link x/y/z')
+    keys.press('h')
+    keys.expect(r'teleop, tool mode')
+    # Jogs sent before discovery completes are lost: press until one arrives.
+    deadline = time.monotonic() + CONNECT_TIMEOUT
+    while not jogs:
+        assert time.monotonic() < deadline, f'no tool_jog on z:\n{keys.output}'
+        keys.press('z')
+        pressed = time.monotonic()
+        while not jogs and time.monotonic() - pressed < 2.0:
+            time.sleep(0.01)
+    assert jogs[-1].transform.translation.z == pytest.approx(0.01)
+    jogs.clear()
+    keys.press('c')
+    wait_for(lambda: jogs, MOVE_TIMEOUT, 'the tool_jog of c')
+    step = jogs[-1]
+    assert step.header.frame_id == 'base_link'
+    assert (step.transform.translation.x, step.transform.translation.z) == (0.0, 0.0)
+    assert step.transform.rotation.z == pytest.approx(math.sin(math.radians(5.0) / 2))
+    keys.press('m')
+    keys.expect(r'joint mode')
+    assert call(keys, 'g', '/pick_ball') == 'done'
+    keys.expect(r'picked the ball at \(0\.400, -0\.300, -0\.090\) m in base_link')
+    assert picks
+    keys.press('p')
+    assert keys.wait() == 0

@@ -7,6 +7,7 @@ elsewhere, without them, these tests are skipped with the reason.
 from collections.abc import Iterator
 import math
 import os
+import re
 import shutil
 import subprocess
 import tempfile
@@ -92,7 +93,7 @@ def test_page_follows_the_simulator(ros_graph, browser):
     # test alone renders a smaller image to leave the two cores to the browser and the nodes.
     screenshot = os.environ.get('VIEWER_SCREENSHOT')
     width, height = (640, 480) if screenshot else (320, 240)
-    ros_graph.add(SimNode(context=ros_graph.context, parameter_overrides=[
+    sim = ros_graph.add(SimNode(context=ros_graph.context, parameter_overrides=[
         Parameter('camera_width', value=width), Parameter('camera_height', value=height)]))
     ros_graph.add(VisionNode(context=ros_graph.context))
     viewer = ros_graph.add(ViewerNode(context=ros_graph.context, parameter_overrides=[
@@ -106,6 +107,13 @@ def test_page_follows_the_simulator(ros_graph, browser):
     [before] = wait_for(lambda: non_blank_frame(browser), 30, 'a non-blank frame in the page')
     wait_for(lambda: browser.find_element(By.ID, 'ball').text.startswith('x '), 30,
              'the page to show the ball position found by vision')
+    world = wait_for(lambda: re.fullmatch(
+        r"x (\S+) y (\S+) z (\S+) m in world, (?:from the sim's camera pose|through the "
+        r"transform tree)",
+        browser.find_element(By.ID, 'ball-world').text), 30, 'the ball in world coordinates')
+    # Where the sim put it, to within a centimetre or two (the depth camera's error).
+    assert [float(value) for value in world.groups()] == pytest.approx(
+        sim.get_parameter('ball_position').value, abs=0.02)
     wait_for(jog.get_subscription_count, 10, 'the sim to subscribe to joint_jog')
 
     jog.publish(JointState(name=['shoulder_pan_joint'], position=[0.6]))

@@ -1,6 +1,9 @@
 """The viewer node in a ROS graph, fed by fake publishers of the contract's topics."""
 
 import json
+import math
+import socket
+import subprocess
 import urllib.request
 
 from conftest import wait_for
@@ -73,8 +76,45 @@ def test_viewer_serves_what_the_topics_say(ros_graph):
         ball.publish(point)
         return state(viewer).get('ball')
 
+    # No sim to give the camera pose: no world coordinates.
     assert wait_for(ball_shown, 10, 'the ball in /state') == {
-        'frame_id': 'camera_color_optical_frame', 'x': 0.1, 'y': 0.2, 'z': 1.5}
+        'frame_id': 'camera_color_optical_frame', 'x': 0.1, 'y': 0.2, 'z': 1.5, 'world': None,
+        'base_link': None, 'via': None}
+
+
+def test_the_ball_is_shown_in_world_coordinates_from_the_sims_camera_pose(ros_graph):
+    # A stand-in for the sim: its camera 1 m above the floor at x = 1, looking at the origin.
+    # Optical z then points along (-1, 0, -1)/sqrt(2), x along world y, y along (1, 0, -1)/sqrt(2).
+    sim = ros_graph.node('ur_rg2_sim')
+    sim.declare_parameter('camera_position', [1.0, 0.0, 1.0])
+    sim.declare_parameter('camera_look_at', [0.0, 0.0, 0.0])
+    viewer = ros_graph.add(ViewerNode(context=ros_graph.context, parameter_overrides=[
+        Parameter('port', value=0)]))
+    ball = ros_graph.node('fake_vision').create_publisher(PointStamped, 'ball/position', 10)
+    wait_for(ball.get_subscription_count, 10, 'the viewer to subscribe')
+    point = PointStamped()
+    point.header.frame_id = 'camera_color_optical_frame'
+    point.point.x, point.point.y, point.point.z = 0.1, 0.2, math.sqrt(2)
+
+    def world_shown():
+        ball.publish(point)
+        return state(viewer).get('ball', {}).get('world')
+
+    world = wait_for(world_shown, 20, 'world coordinates in /state')
+    assert world['frame_id'] == 'world'
+    r = 0.2 / math.sqrt(2)
+    assert [world['x'], world['y'], world['z']] == pytest.approx([r, 0.1, -r], abs=1e-9)
+    assert state(viewer)['ball']['z'] == pytest.approx(math.sqrt(2))  # and the optical frame
+
+    # The pose may change at run time: the viewer follows.
+    sim.set_parameters([Parameter('camera_position', value=[1.0, 0.0, 2.0]),
+                        Parameter('camera_look_at', value=[0.0, 0.0, 1.0])])
+    wait_for(lambda: world_shown()['z'] == pytest.approx(1 - r), 20, 'the new camera pose')
+    # A point in another frame is not converted.
+    point.header.frame_id = 'somewhere_else'
+    wait_for(lambda: (ball.publish(point), state(viewer)['ball'])[1]['frame_id']
+             == 'somewhere_else', 10, 'the other frame')
+    assert state(viewer)['ball']['world'] is None
 
 
 def test_image_topic_parameter_selects_the_raw_camera(ros_graph):
@@ -97,3 +137,32 @@ def test_busy_port_fails_clearly(ros_graph):
     port = int(first.url.rsplit(':', 1)[1].strip('/'))
     with pytest.raises(OSError):
         ViewerNode(context=ros_graph.context, parameter_overrides=[Parameter('port', value=port)])
+
+
+def run_viewer(ros_graph, port: str) -> subprocess.CompletedProcess:
+    """Run the viewer executable with ``port:=PORT``; return how it ended."""
+    return subprocess.run(['viewer', '--ros-args', '-p', f'port:={port}'], env=ros_graph.env,
+                          capture_output=True, text=True, timeout=60)
+
+
+@pytest.mark.parametrize('port', ['99999', '-1'])
+def test_a_port_out_of_range_ends_the_viewer_with_one_line(ros_graph, port):
+    ended = run_viewer(ros_graph, port)
+    assert ended.returncode == 1
+    assert 'Traceback' not in ended.stderr + ended.stdout
+    lines = ended.stderr.splitlines()
+    assert len(lines) == 1 and '[ERROR]' in lines[0], ended.stderr
+    assert 'cannot start' in lines[0] and 'port' in lines[0] and port in lines[0]
+
+
+def test_a_port_in_use_ends_the_viewer_with_one_line(ros_graph):
+    with socket.socket() as busy:
+        busy.bind(('127.0.0.1', 0))
+        busy.listen()
+        port = str(busy.getsockname()[1])
+        ended = run_viewer(ros_graph, port)
+    assert ended.returncode == 1
+    assert 'Traceback' not in ended.stderr + ended.stdout
+    lines = ended.stderr.splitlines()
+    assert len(lines) == 1 and '[ERROR]' in lines[0], ended.stderr
+    assert f'cannot serve on 127.0.0.1 port {port}' in lines[0]

@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 import pytest
 from ur_rg2_vision import viewer_web
-from ur_rg2_vision.viewer_web import FrameHub, ViewerServer, joint_summary
+from ur_rg2_vision.viewer_web import FrameHub, ViewerServer, ball_summary, joint_summary
 
 
 def solid(value: int, width: int = 64, height: int = 48) -> np.ndarray:
@@ -222,3 +222,18 @@ def test_busy_port_raises_oserror(server):
     second = ViewerServer(FrameHub(), '127.0.0.1', server.port)
     with pytest.raises(OSError):
         second.start()
+
+
+def test_ball_summary_in_its_frame_and_the_world():
+    shift = lambda point: [value + 1.0 for value in point]  # noqa: E731 - a toy transform
+    assert ball_summary('cam', (0.1, 0.2, 1.5), shift) == {
+        'frame_id': 'cam', 'x': 0.1, 'y': 0.2, 'z': 1.5,
+        'world': {'frame_id': 'world', 'x': 1.1, 'y': 1.2, 'z': 2.5}, 'base_link': None,
+        'via': "from the sim's camera pose"}
+    assert ball_summary('cam', (0.1, 0.2, 1.5), None)['world'] is None
+    assert ball_summary('cam', (0.1, 0.2, 1.5), None)['via'] is None
+    both = ball_summary('cam', (0.1, 0.2, 1.5), shift, shift, 'through the transform tree')
+    assert both['base_link'] == {'frame_id': 'base_link', 'x': 1.1, 'y': 1.2, 'z': 2.5}
+    assert both['via'] == 'through the transform tree'
+    unknown = ball_summary('cam', (math.nan, 0.2, 1.5), shift)
+    assert unknown['x'] is None and unknown['world'] is None

@@ -1,10 +1,13 @@
-"""Ball detection (2D) and localisation (3D) on synthetic frames with exact ground truth."""
+"""Ball detection (2D) and localisation (3D) on synthetic frames with exact ground truth.
+
+The 3D tests measure the ball's radius (the node's default) unless they say otherwise.
+"""
 
 import math
 
 import numpy as np
 import pytest
-from test_vision_scenes import FX, WIDTH, Box, K, Scene, Sphere, project, render
+from test_vision_scenes import CX, CY, FX, FY, WIDTH, Box, K, Scene, Sphere, project, render
 from ur_rg2_vision.detector import RED, BallDetector, HsvRange
 from ur_rg2_vision.localize import locate_ball
 
@@ -75,10 +78,42 @@ def test_finds_the_ball(name):
     u, v = project(ball)
     assert math.hypot(found.u - u, found.v - v) < 0.5
     assert found.radius == pytest.approx(expected_radius(ball), rel=0.05)
-    position = locate_ball(found, depth, K, 0.03)
+    position = locate_ball(found, depth, K)
     assert position is not None
     error = np.linalg.norm(np.array([position.x, position.y, position.z]) - ball)
     assert error < 0.002, f'3D error {error * 1000:.1f} mm'
+    assert position.radius == pytest.approx(0.03, abs=0.001)
+
+
+@pytest.mark.parametrize('name', ['plain', 'small_far', 'large_near', 'half_hidden', 'clutter'])
+def test_a_given_radius_is_assumed(name):
+    scene, ball = visible_ball(name)
+    rgb, depth = render(scene)
+    (found,) = BallDetector().detect(rgb, K)
+    position = locate_ball(found, depth, K, 0.03)
+    error = np.linalg.norm(np.array([position.x, position.y, position.z]) - ball)
+    assert error < 0.002 and position.radius == 0.03
+
+
+def ball_at(u: float, v: float, distance: float) -> tuple[float, float, float]:
+    """Return the optical point ``distance`` m from the camera seen at pixel (u, v)."""
+    ray = np.array([(u - CX) / FX, (v - CY) / FY, 1.0])
+    return tuple(distance * ray / np.linalg.norm(ray))
+
+
+@pytest.mark.parametrize('radius', [0.015, 0.022, 0.03, 0.05, 0.08])
+@pytest.mark.parametrize('distance', [0.5, 1.0, 1.5, 2.0])
+def test_balls_of_any_size_are_found_and_measured(radius, distance):
+    for u, v in [(320, 250), (150, 120), (520, 380)]:  # on the axis, and off it
+        ball = ball_at(u, v, distance)
+        # Looking almost level: the floor is farther than 2.5 m wherever it is seen.
+        rgb, depth = render(Scene(spheres=[Sphere(ball, radius)], pitch=np.radians(10.0)))
+        (found,) = BallDetector().detect(rgb, K)
+        position = locate_ball(found, depth, K)
+        assert position is not None, (u, v)
+        error = np.linalg.norm(np.array([position.x, position.y, position.z]) - ball)
+        assert error < 0.001, f'3D error {error * 1000:.2f} mm at {(u, v)}'
+        assert position.radius == pytest.approx(radius, abs=0.001), (u, v)
 
 
 @pytest.mark.parametrize('name', ['plain', 'small_far', 'finger_in_front'])
@@ -181,7 +216,7 @@ def test_depth_of_an_occluder_in_front_is_ignored():
     cols, rows = found.pixels()
     bad = np.random.default_rng(3).random(len(cols)) < 0.3
     depth[rows[bad], cols[bad]] = depth[rows[bad], cols[bad]] - 0.2
-    position = locate_ball(found, depth, K, 0.03)
+    position = locate_ball(found, depth, K)
     error = np.linalg.norm(np.array([position.x, position.y, position.z]) - ball)
     assert error < 0.002
 
@@ -193,15 +228,16 @@ def test_missing_depth_pixels_are_skipped():
     cols, rows = found.pixels()
     holes = np.random.default_rng(4).random(len(cols)) < 0.5
     depth[rows[holes], cols[holes]] = np.where(np.arange(holes.sum()) % 2, np.nan, np.inf)
-    position = locate_ball(found, depth, K, 0.03)
+    position = locate_ball(found, depth, K)
     assert np.linalg.norm(np.array([position.x, position.y, position.z]) - ball) < 0.002
 
 
 def test_no_depth_gives_no_position():
     rgb, depth = render(visible_ball('plain')[0])
     (found,) = BallDetector().detect(rgb, K)
-    assert locate_ball(found, np.full_like(depth, np.nan), K, 0.03) is None
-    assert locate_ball(found, np.zeros_like(depth), K, 0.03) is None
+    for radius in (0.0, 0.03):
+        assert locate_ball(found, np.full_like(depth, np.nan), K, radius) is None
+        assert locate_ball(found, np.zeros_like(depth), K, radius) is None
 
 
 def test_wrong_ball_radius_gives_no_position():
@@ -211,9 +247,33 @@ def test_wrong_ball_radius_gives_no_position():
     assert locate_ball(found, depth, K, 0.015) is None
 
 
-@pytest.mark.parametrize('distance', [1.6, 2.2, 2.8])
-def test_far_cube_that_looks_round_is_not_a_ball(distance):
-    scene = Scene(boxes=[Box(BASE.on_floor(0.0, distance, 0.025), (0.025,) * 3, yaw=0.7)])
+@pytest.mark.parametrize('ball_radius', [0.0, 0.03])
+@pytest.mark.parametrize('half, distance', [(0.025, 1.6), (0.025, 2.2), (0.025, 2.8),
+                                            (0.015, 1.5), (0.04, 2.8), (0.06, 3.5)])
+def test_far_cube_that_looks_round_is_not_a_ball(half, distance, ball_radius):
+    scene = Scene(boxes=[Box(BASE.on_floor(0.0, distance, half), (half,) * 3, yaw=0.7)])
     rgb, depth = render(scene)
     for detection in BallDetector().detect(rgb, K):  # 2D may take a far cube for a ball ...
-        assert locate_ball(detection, depth, K, 0.03) is None  # ... depth must not
+        assert locate_ball(detection, depth, K, ball_radius) is None  # ... depth must not
+
+
+@pytest.mark.parametrize('radius, distance', [(0.015, 1.0), (0.03, 0.6), (0.03, 1.5),
+                                              (0.05, 2.0), (0.08, 1.0)])
+def test_picture_of_a_ball_on_the_floor_is_not_a_ball(radius, distance):
+    # A flat red patch with exactly a ball's outline and shading: only the depth tells.
+    ball = BASE.on_floor(0.0, distance, radius)
+    rgb, _ = render(Scene(spheres=[Sphere(ball, radius)]))
+    _, flat = render(Scene())
+    (detection,) = BallDetector().detect(rgb, K)
+    assert locate_ball(detection, flat, K) is None
+    assert locate_ball(detection, flat, K, radius) is None
+
+
+@pytest.mark.parametrize('ball_radius', [0.0, 0.03])
+def test_depth_that_shows_no_sphere_gives_no_position(ball_radius):
+    rgb, depth = render(visible_ball('plain')[0])
+    (found,) = BallDetector().detect(rgb, K)
+    rng = np.random.default_rng(5)
+    for bad in (np.full_like(depth, 1.2), rng.uniform(0.3, 3.0, depth.shape),
+                np.full_like(depth, 1e-6), np.full_like(depth, 1e6)):
+        assert locate_ball(found, bad.astype(np.float32), K, ball_radius) is None

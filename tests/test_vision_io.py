@@ -85,14 +85,18 @@ def test_depth_to_mm_rounds_and_zeroes_no_return():
     assert depth_to_mm(depth).tolist() == [0, 1, 1234, 65535, 0, 0, 0, 0, 0]
 
 
-def test_save_frame_writes_colour_and_depth_pngs_named_by_stamp(tmp_path):
+# 2026-11-23 14:08:48.123456 UTC, when a frame was saved
+WALL = 1795442928.123456
+STEM = 'frame_20261123T140848.123Z_sim0000000012.005000000'
+
+
+def test_save_frame_writes_colour_and_depth_pngs_named_by_wall_clock_and_stamp(tmp_path):
     rgb = np.random.default_rng(1).integers(0, 256, (48, 64, 3), dtype=np.uint8)
     depth = np.full((48, 64), 1.5, np.float32)
     depth[0, 0] = np.inf
     directory = tmp_path / 'new' / 'frames'
-    paths = save_frame(str(directory), 12, 5_000_000, rgb, depth)
-    assert [os.path.basename(p) for p in paths] == [
-        'frame_0000000012_005000000_color.png', 'frame_0000000012_005000000_depth.png']
+    paths = save_frame(str(directory), 12, 5_000_000, rgb, depth, wall_time=WALL)
+    assert [os.path.basename(p) for p in paths] == [f'{STEM}_color.png', f'{STEM}_depth.png']
     np.testing.assert_array_equal(cv2.cvtColor(cv2.imread(paths[0]), cv2.COLOR_BGR2RGB), rgb)
     saved_depth = cv2.imread(paths[1], cv2.IMREAD_UNCHANGED)
     assert saved_depth.dtype == np.uint16
@@ -101,8 +105,57 @@ def test_save_frame_writes_colour_and_depth_pngs_named_by_stamp(tmp_path):
 
 
 def test_save_frame_without_depth(tmp_path):
-    paths = save_frame(str(tmp_path), 1, 2, RGB, None)
-    assert [os.path.basename(p) for p in paths] == ['frame_0000000001_000000002_color.png']
+    paths = save_frame(str(tmp_path), 12, 5_000_000, RGB, None, wall_time=WALL)
+    assert [os.path.basename(p) for p in paths] == [f'{STEM}_color.png']
+
+
+def test_a_second_run_keeps_the_first_runs_frames(tmp_path):
+    """Simulation time starts at 0 in every run: the same stamps must not replace old files."""
+    first = save_frame(str(tmp_path), 0, 500_000_000, RGB, np.ones((4, 5), np.float32))
+    second = save_frame(str(tmp_path), 0, 500_000_000, RGB[::-1].copy(),
+                        np.full((4, 5), 2.0, np.float32))
+    assert not set(first) & set(second)
+    assert sorted(os.listdir(tmp_path)) == sorted(os.path.basename(p) for p in first + second)
+    np.testing.assert_array_equal(cv2.imread(first[1], cv2.IMREAD_UNCHANGED), 1000)
+    np.testing.assert_array_equal(cv2.imread(second[1], cv2.IMREAD_UNCHANGED), 2000)
+
+
+@pytest.mark.parametrize('existing', ['color', 'depth'])
+def test_an_existing_file_is_never_replaced(tmp_path, existing):
+    """Same wall-clock millisecond and stamp (or a file of that name): the next name is used."""
+    (tmp_path / f'{STEM}_{existing}.png').write_bytes(b'precious')
+    paths = save_frame(str(tmp_path), 12, 5_000_000, RGB, np.ones((4, 5), np.float32),
+                       wall_time=WALL)
+    assert [os.path.basename(p) for p in paths] == [f'{STEM}_1_color.png', f'{STEM}_1_depth.png']
+    assert (tmp_path / f'{STEM}_{existing}.png').read_bytes() == b'precious'
+    assert sorted(os.listdir(tmp_path)) == sorted(
+        [f'{STEM}_{existing}.png'] + [os.path.basename(p) for p in paths])
+    again = save_frame(str(tmp_path), 12, 5_000_000, RGB, None, wall_time=WALL)
+    assert [os.path.basename(p) for p in again] == [f'{STEM}_2_color.png']
+
+
+def test_without_hard_links_files_still_appear_whole_and_never_replace(tmp_path, monkeypatch):
+    """Some file systems (FAT, some network mounts) refuse hard links."""
+    def no_link(source, destination):
+        raise OSError(errno.EPERM, 'Operation not permitted')
+
+    monkeypatch.setattr(frame_store.os, 'link', no_link)
+    (tmp_path / f'{STEM}_color.png').write_bytes(b'precious')
+    paths = save_frame(str(tmp_path), 12, 5_000_000, RGB, None, wall_time=WALL)
+    assert [os.path.basename(p) for p in paths] == [f'{STEM}_1_color.png']
+    assert (tmp_path / f'{STEM}_color.png').read_bytes() == b'precious'
+    np.testing.assert_array_equal(cv2.cvtColor(cv2.imread(paths[0]), cv2.COLOR_BGR2RGB), RGB)
+    assert sorted(os.listdir(tmp_path)) == [f'{STEM}_1_color.png', f'{STEM}_color.png']
+
+
+@pytest.mark.parametrize('umask, mode', [(0o022, 0o644), (0o027, 0o640), (0o002, 0o664)])
+def test_saved_files_get_the_mode_of_new_files(tmp_path, umask, mode):
+    previous = os.umask(umask)
+    try:
+        paths = save_frame(str(tmp_path), 1, 2, RGB, np.ones((4, 5), np.float32))
+    finally:
+        os.umask(previous)
+    assert [oct(os.stat(p).st_mode & 0o777) for p in paths] == [oct(mode)] * 2
 
 
 def test_unwritable_directory_raises_and_leaves_nothing(tmp_path):

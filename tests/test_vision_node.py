@@ -2,6 +2,13 @@
 
 import functools
 import os
+from pathlib import Path
+import re
+import select
+import signal
+import subprocess
+import sys
+import time
 
 from builtin_interfaces.msg import Time
 from conftest import wait_for
@@ -9,6 +16,7 @@ import cv2
 from geometry_msgs.msg import PointStamped
 import numpy as np
 import pytest
+from rcl_interfaces.msg import Log
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
@@ -23,6 +31,13 @@ TIMEOUT = 15.0  # generous: a loaded 2-core machine
 QUIET = 0.5  # how long "nothing more arrives" is watched
 QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 FRAME_ID = 'camera_color_optical_frame'
+# A saved frame's name: the UTC time of the save, then the simulation stamp.
+SAVED = r'frame_\d{8}T\d{6}\.\d{3}Z_sim%010d\.%09d(?:_\d+)?_(color|depth)\.png'
+
+
+def saved_name(sec: int, nanosec: int = 250_000_000) -> re.Pattern:
+    """Return the pattern of the names of the frame stamped ``sec``.``nanosec``."""
+    return re.compile(SAVED % (sec, nanosec))
 
 
 @functools.cache
@@ -110,6 +125,17 @@ class Rig:
         return future.result()
 
 
+def rosout(graph) -> list[Log]:
+    """Return a list that collects what the nodes of ``graph`` log from now on."""
+    logs: list[Log] = []
+    graph.node('log_listener').create_subscription(Log, '/rosout', logs.append, 100)
+    return logs
+
+
+def vision_warnings(logs: list[Log]) -> list[str]:
+    return [log.msg for log in logs if log.name == 'ur_rg2_vision' and log.level >= Log.WARN]
+
+
 def start(graph, tmp_path, namespace: str = '', **parameters) -> Rig:
     parameters.setdefault('frames_dir', str(tmp_path / 'frames'))
     vision = graph.add(VisionNode(
@@ -163,6 +189,42 @@ def test_frame_without_ball_gives_image_but_no_position(ros_graph, tmp_path):
     assert [p.header.stamp.sec for p in rig.positions] == [2]
 
 
+def test_camera_info_coming_late_gives_no_warning(ros_graph, tmp_path):
+    """At start-up camera_info may reach vision a few frames after the images."""
+    logs = rosout(ros_graph)
+    rig = start(ros_graph, tmp_path)
+    for sec in range(1, 6):
+        rig.send_ball(sec, info=False)
+        rig.wait_images(sec)
+    rig.send_ball(6)
+    wait_for(lambda: 6 in [p.header.stamp.sec for p in rig.positions], TIMEOUT,
+             'a position once camera_info came')
+    # A warning about something else: once it is in, a camera_info warning would be too.
+    rig.color.publish(Image(header=header(7), height=2, width=2, encoding='mono16', step=4,
+                            data=bytes(8)))
+    wait_for(lambda: vision_warnings(logs), TIMEOUT, 'the warning about the bad image')
+    assert [msg for msg in vision_warnings(logs) if 'colour image ignored' in msg] == \
+        vision_warnings(logs)
+
+
+def test_camera_info_missing_for_good_is_warned_about(ros_graph, tmp_path):
+    logs = rosout(ros_graph)
+    rig = start(ros_graph, tmp_path)
+    sec = 0
+
+    def warned() -> bool:
+        nonlocal sec
+        sec += 1
+        rig.send_ball(sec, info=False)
+        time.sleep(0.1)  # a camera's pace, not a flood
+        return any('no camera/color/camera_info for the' in msg
+                   for msg in vision_warnings(logs))
+
+    wait_for(warned, TIMEOUT, 'the warning that camera_info is missing')
+    assert sec >= 10  # not at the first frames: those may just be early
+    assert not rig.positions
+
+
 def test_save_frame_before_any_frame_fails_with_reason(ros_graph, tmp_path):
     rig = start(ros_graph, tmp_path)
     response = rig.call_save()
@@ -178,7 +240,8 @@ def test_save_frame_writes_colour_and_depth_png(ros_graph, tmp_path):
     assert response.success, response.message
     color_path, depth_path = response.message.split()
     assert color_path.endswith('_color.png') and depth_path.endswith('_depth.png')
-    assert os.path.basename(color_path).startswith('frame_0000000005_250000000')
+    assert saved_name(5).fullmatch(os.path.basename(color_path))
+    assert os.path.basename(depth_path) == os.path.basename(color_path)[:-9] + 'depth.png'
     rgb, depth, _ = ball_frame()
     saved = cv2.cvtColor(cv2.imread(color_path), cv2.COLOR_BGR2RGB)
     np.testing.assert_array_equal(saved, rgb)
@@ -186,6 +249,24 @@ def test_save_frame_writes_colour_and_depth_png(ros_graph, tmp_path):
                                   depth_to_mm(depth))
     assert sorted(os.listdir(tmp_path / 'frames')) == sorted(
         os.path.basename(p) for p in (color_path, depth_path))
+
+
+def test_a_saved_frame_is_reported_once_by_the_answer_not_in_the_log(ros_graph, tmp_path):
+    """The caller (keys) prints the answer; an info log line would say it a second time."""
+    logs = rosout(ros_graph)
+    rig = start(ros_graph, tmp_path)
+    rig.send_ball(5)
+    rig.wait_positions(1)
+    response = rig.call_save()
+    assert response.success, response.message
+    # A failing save warns: once that warning is in, an info line about the save would be too.
+    blocker = tmp_path / 'not_a_dir'
+    blocker.write_text('')
+    rig.vision.set_parameters([Parameter('frames_dir', value=str(blocker / 'frames'))])
+    assert not rig.call_save().success
+    wait_for(lambda: any('not_a_dir' in log.msg for log in logs), TIMEOUT, 'the warning')
+    shown = [log.msg for log in logs if log.name == 'ur_rg2_vision' and log.level >= Log.INFO]
+    assert not [msg for msg in shown if response.message.split()[0] in msg], shown
 
 
 def test_save_frame_colour_only_says_depth_is_missing(ros_graph, tmp_path):
@@ -216,10 +297,15 @@ def test_save_every_n_saves_every_nth_frame(ros_graph, tmp_path):
         rig.send_ball(sec)
         rig.wait_positions(sec)
     frames = tmp_path / 'frames'
-    expected = {f'frame_{sec:010d}_250000000_{kind}.png' for sec in (2, 4)
-                for kind in ('color', 'depth')}
-    wait_for(lambda: frames.is_dir() and set(os.listdir(frames)) == expected, TIMEOUT,
-             f'{sorted(expected)} in {frames}')
+    expected = [(sec, kind) for sec in (2, 4) for kind in ('color', 'depth')]
+
+    def saved_frames():
+        names = os.listdir(frames) if frames.is_dir() else []
+        return sorted((sec, match.group(1)) for name in names for sec in range(1, 6)
+                      if (match := saved_name(sec).fullmatch(name)))
+
+    wait_for(lambda: saved_frames() == expected, TIMEOUT, f'frames {expected} in {frames}')
+    assert len(os.listdir(frames)) == 4  # nothing else
 
 
 def test_save_every_n_without_depth_saves_the_colour_alone(ros_graph, tmp_path):
@@ -229,9 +315,51 @@ def test_save_every_n_without_depth_saves_the_colour_alone(ros_graph, tmp_path):
         rig.send(sec, rgb)
         rig.wait_images(sec)
     frames = tmp_path / 'frames'
-    wait_for(lambda: frames.is_dir() and 'frame_0000000001_250000000_color.png'
-             in os.listdir(frames), TIMEOUT, 'the first colour frame saved alone')
+    wait_for(lambda: frames.is_dir() and any(saved_name(1).fullmatch(name)
+                                             for name in os.listdir(frames)),
+             TIMEOUT, 'the first colour frame saved alone')
     assert not [name for name in os.listdir(frames) if 'depth' in name]
+
+
+def test_a_second_run_keeps_the_first_runs_frames(ros_graph, tmp_path):
+    """Simulation time restarts at 0: a second graph saving to the same directory adds files."""
+    frames = tmp_path / 'frames'
+
+    def saved_files() -> list[str]:  # not the hidden temporary files of a save in progress
+        names = os.listdir(frames) if frames.is_dir() else []
+        return sorted(name for name in names if not name.startswith('.'))
+
+    first = start(ros_graph, tmp_path, save_every_n=1)
+    first.send_ball(1)
+    wait_for(lambda: len(saved_files()) == 2, TIMEOUT, "the first run's frame")
+    before = {name: (frames / name).read_bytes() for name in saved_files()}
+    second = start(ros_graph, tmp_path, namespace='second_run', save_every_n=1)
+    second.send_ball(1)
+    wait_for(lambda: len(saved_files()) == 4, TIMEOUT, "the second run's frame")
+    assert {name: (frames / name).read_bytes() for name in before} == before
+    assert second.call_save().success
+    assert len(saved_files()) == 6
+
+
+def test_start_up_log_names_the_absolute_frames_dir(ros_graph, tmp_path):
+    """frames_dir is relative to where the node was started: the log says where that is."""
+    vision = subprocess.Popen([str(Path(sys.executable).with_name('vision'))], cwd=tmp_path,
+                              env=ros_graph.env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    try:
+        output = b''
+        deadline = time.monotonic() + 30.0
+        while not re.search(rb'frames are saved to .*\n', output):
+            assert time.monotonic() < deadline, f'no start-up line: {output!r}'
+            if select.select([vision.stdout], [], [], 0.2)[0]:
+                chunk = os.read(vision.stdout.fileno(), 4096)
+                assert chunk, f'vision exited: {output!r}'
+                output += chunk
+    finally:
+        vision.send_signal(signal.SIGINT)
+        rest, _ = vision.communicate(timeout=15)
+    line = re.search(r'frames are saved to (\S+)', output.decode()).group(1)
+    assert re.sub(r'\x1b\[[0-9;]*m', '', line) == str(tmp_path / 'frames')
+    assert vision.returncode == 0, (output + rest).decode()
 
 
 @pytest.mark.parametrize('bad', [

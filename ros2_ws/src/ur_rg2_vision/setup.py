@@ -21,6 +21,7 @@ setup(
         'console_scripts': [
             'vision = ur_rg2_vision.vision_node:main',
             'viewer = ur_rg2_vision.viewer_node:main',
+            'dataset = ur_rg2_vision.dataset_node:main',
         ],
     },
 )

@@ -3,8 +3,10 @@
 pybullet's CPU TinyRenderer costs per covered pixel, and a floor fills half the image: with the
 floor rasterised a 640x480 frame takes ~90 ms, without it ~15 ms. The floor is the plane z = 0,
 so its colour and depth per pixel depend only on the camera pose; they are computed once with
-numpy and composited under the rendered bodies by depth. Bodies below the floor plane (the arm
-may pass through it, see world.py) are hidden exactly as a rendered floor would hide them.
+numpy and composited under the rendered bodies by depth. Whatever lies below the floor plane is
+hidden exactly as a rendered floor would hide it: the arm cannot get there (floor and pedestal
+are solid, see world.py), but the floor's own visual speck sits there, and tests park bodies
+there out of sight.
 """
 
 from collections.abc import Sequence
@@ -14,6 +16,7 @@ import math
 import numpy as np
 import pybullet
 
+from ur_rg2_sim.camera_pose import optical_rotation
 from ur_rg2_sim.world import SimWorld
 
 # A Kinect v1 sees 0.4-8 m; nearer and farther the renderer clips.
@@ -126,22 +129,3 @@ class Camera:
                                      floor.shape)
         rgb = np.where(hits[..., None], floor, background)
         return np.clip(rgb, 0, 255).astype(np.uint8), depth
-
-
-def optical_rotation(position: Sequence[float], look_at: Sequence[float]) -> np.ndarray:
-    """Return the rotation whose columns are the optical x, y, z axes in the world frame.
-
-    The camera looks from ``position`` at ``look_at`` with no roll (image x horizontal).
-    """
-    forward = np.asarray(look_at, dtype=float) - np.asarray(position, dtype=float)
-    norm = np.linalg.norm(forward)
-    if norm < 1e-9:
-        raise ValueError('camera_position and camera_look_at must differ')
-    z = forward / norm
-    up = np.array([0.0, 0.0, 1.0])
-    if abs(z @ up) > 0.999:  # looking straight down or up: any horizontal x will do
-        up = np.array([0.0, 1.0, 0.0])
-    x = np.cross(z, up)
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    return np.column_stack([x, y, z])

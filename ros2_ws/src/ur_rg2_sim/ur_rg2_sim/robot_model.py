@@ -39,6 +39,7 @@ TCP_LINK = 'rg2_tcp'
 # RG2 datasheet values.
 RG2_MAX_OPENING = 0.110  # m, between the finger pads
 RG2_MAX_FORCE = 40.0  # N
+RG2_MIN_FORCE = 3.0  # N
 RG2_MAX_FINGER_SPEED = 0.127 / 2  # m/s per finger (datasheet closing speed 38-127 mm/s)
 RG2_MASS = 0.78  # kg
 

@@ -4,12 +4,13 @@ from array import array
 from collections.abc import Sequence
 from concurrent.futures import TimeoutError as FutureTimeout
 from dataclasses import dataclass
+import math
 import os
 import sys
 from typing import Optional
 
 from builtin_interfaces.msg import Time
-from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rcl_interfaces.msg import SetParametersResult
 import rclpy
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.exceptions import ParameterException
@@ -23,12 +24,15 @@ from std_srvs.srv import Trigger
 
 from ur_rg2_sim.camera import Camera, CameraConfig, Frame
 from ur_rg2_sim.commands import CommandError, finite_vector, in_range, joint_targets
+from ur_rg2_sim.controllers import Controllers
 from ur_rg2_sim.executors import BlockingGroupExecutor
+from ur_rg2_sim.frame_publisher import FramePublisher
+from ur_rg2_sim.frames import OPTICAL_FRAME, load_frame_tree, robot_description
+from ur_rg2_sim.parameters import declare_parameters
 from ur_rg2_sim.robot_model import ARM_JOINTS, ROBOT_MODELS, RobotModelError
 from ur_rg2_sim.simulation import NS, Schedule, SimulationLoop
 from ur_rg2_sim.world import DEFAULT_BALL_POSITION, JointStateSample, SimWorld, WorldConfig
 
-COLOR_FRAME = 'camera_color_optical_frame'
 # Gripper and reset services give up after this much simulation time (the contract's 5 s).
 SERVICE_TIMEOUT = 5.0
 # The fingers count as stopped once they have not moved for this long.
@@ -63,6 +67,8 @@ _PARAMETERS = (
     ('ball_color', [1.0, 0.0, 0.0, 1.0], 'Ball colour [r, g, b, a], 0-1', False),
     ('home_position', [0.0] * len(ARM_JOINTS), 'Arm home pose for reset, rad, joint order of '
      'joint_states', False),
+    ('frame_prefix', '', 'Prepended to every frame id the sim publishes (several robots on one '
+     'graph)', True),
 )
 
 
@@ -85,6 +91,7 @@ class SimSettings:
     ball_radius: float
     ball_color: tuple[float, ...]
     home_position: tuple[float, ...]
+    frame_prefix: str
 
     @classmethod
     def from_values(cls, values: dict) -> 'SimSettings':
@@ -114,6 +121,7 @@ class SimSettings:
             ball_color=color,
             home_position=finite_vector('home_position', values['home_position'],
                                         len(ARM_JOINTS)),
+            frame_prefix=values['frame_prefix'],
         )
 
     def camera_config(self) -> CameraConfig:
@@ -132,11 +140,7 @@ class SimNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__('ur_rg2_sim', **kwargs)
-        for name, default, description, read_only in _PARAMETERS:
-            self.declare_parameter(name, default, ParameterDescriptor(
-                description=description, read_only=read_only))
-        self.settings = SimSettings.from_values(
-            {name: self.get_parameter(name).value for name, *_ in _PARAMETERS})
+        self.settings = SimSettings.from_values(declare_parameters(self, _PARAMETERS))
         s = self.settings
         gui = s.gui and bool(os.environ.get('DISPLAY') or os.environ.get('WAYLAND_DISPLAY'))
         if s.gui and not gui:
@@ -156,6 +160,11 @@ class SimNode(Node):
         self._depth_pub = self.create_publisher(Image, 'camera/depth/image_raw', IMAGE_QOS)
         self._depth_info_pub = self.create_publisher(
             CameraInfo, 'camera/depth/camera_info', IMAGE_QOS)
+        self._color_frame = s.frame_prefix + OPTICAL_FRAME
+        self._frames = FramePublisher(
+            self, load_frame_tree(self._world, self._world.urdf),
+            robot_description(self._world.urdf), s.frame_prefix, self._world.joint_names)
+        self._frames.publish_static(_stamp(0), s.camera_position, s.camera_look_at)
 
         # Jogs are relative: a burst of key presses must not lose any.
         self.create_subscription(JointState, 'joint_jog', self._on_jog, 100)
@@ -170,6 +179,7 @@ class SimNode(Node):
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         self._sim = SimulationLoop(self._world, self, s.schedule(), self._make_camera(s))
+        self._controllers = Controllers(self, self._sim)
         self._sim.start()
         self.get_logger().info(
             f'simulating {s.robot_model} + RG2 at {s.physics_rate:g} Hz, real-time factor '
@@ -179,6 +189,7 @@ class SimNode(Node):
     def destroy_node(self) -> None:
         """Stop the simulation thread and release pybullet."""
         self._sim.stop()
+        self._controllers.close()
         self._world.close()
         logger = self.get_logger()
         super().destroy_node()
@@ -208,13 +219,15 @@ class SimNode(Node):
         msg.velocity = array('d', sample.velocities)
         msg.effort = array('d', sample.efforts)
         self._joint_pub.publish(msg)
+        self._frames.publish(msg.header.stamp, sample.positions,
+                             self._world.body_pose(self._world.ball))
 
     def frame(self, stamp_ns: int, camera: Camera, frame: Frame) -> None:
         """Publish colour, depth and their camera_info with one header."""
         height, width = frame.depth.shape
         color = Image(height=height, width=width, encoding='rgb8', step=width * 3)
         color.header.stamp = _stamp(stamp_ns)
-        color.header.frame_id = COLOR_FRAME
+        color.header.frame_id = self._color_frame
         color.data = frame.rgb.tobytes()
         depth = Image(header=color.header, height=height, width=width, encoding='32FC1',
                       is_bigendian=sys.byteorder == 'big', step=width * 4)
@@ -239,7 +252,14 @@ class SimNode(Node):
         except CommandError as error:
             self.get_logger().warning(f'{topic} rejected: {error}')
             return
-        self._sim.call(lambda world: apply(world, targets))
+        self._command_arm(topic, lambda world: apply(world, targets))
+
+    def _command_arm(self, source: str, apply):
+        """Run ``apply(world)`` on the simulation thread, preempting a running trajectory."""
+        def command(world: SimWorld):
+            self._controllers.arm_commanded(source)
+            return apply(world)
+        return self._sim.call(command)
 
     def _on_gripper_open(self, request: Trigger.Request,
                          response: Trigger.Response) -> Trigger.Response:
@@ -275,13 +295,13 @@ class SimNode(Node):
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         home = dict(zip(ARM_JOINTS, self.settings.home_position))
-        applied = self._sim_result(self._sim.call(lambda world: world.set_arm_targets(home)))
+        applied = self._sim_result(
+            self._command_arm('reset', lambda world: world.set_arm_targets(home)))
         if isinstance(applied, str):
             response.success, response.message = False, applied
             return response
         response.success = True
-        response.message = 'arm targets set to home: ' + ', '.join(
-            f'{name} {value:.3f} rad' for name, value in applied.items())
+        response.message = f'arm going home: {degrees_list(applied.values())} deg'
         return response
 
     def _sim_result(self, future):
@@ -315,12 +335,23 @@ class SimNode(Node):
         if settings.schedule() != previous.schedule() or (
                 settings.camera_config() != previous.camera_config()):
             self._sim.reschedule(settings.schedule(), self._make_camera(settings))
+        if (settings.camera_position, settings.camera_look_at) != (
+                previous.camera_position, previous.camera_look_at):
+            # Queued after the new camera: every frame stamped after this /tf_static uses it.
+            self._sim.call(lambda world: self._frames.publish_static(
+                _stamp(self._sim.sim_time_ns), settings.camera_position, settings.camera_look_at))
         return SetParametersResult(successful=True)
 
     def _make_camera(self, settings: SimSettings) -> Optional[Camera]:
         if settings.camera_rate <= 0:
             return None
         return Camera(self._world, settings.camera_config())
+
+
+def degrees_list(radians: Sequence[float]) -> str:
+    """Return angles in radians as degrees for people, e.g. ``[0, -90, 12.5]``."""
+    # + 0.0 turns a rounded -0.0 into 0.
+    return '[' + ', '.join(f'{round(math.degrees(a), 1) + 0.0:g}' for a in radians) + ']'
 
 
 def _stamp(stamp_ns: int) -> Time:

@@ -68,6 +68,8 @@ class SimulationLoop:
         self.sim_time_ns = 0
         self.started_at: Optional[float] = None  # time.monotonic() when the thread started
         self.error: Optional[BaseException] = None
+        # Called with (world, sim_time_ns) before every physics step (the controllers).
+        self.step_hooks: list[Callable[[SimWorld, int], None]] = []
         self._calls: queue.SimpleQueue = queue.SimpleQueue()
         self._waiters: list[_Waiter] = []
         self._stop = threading.Event()
@@ -144,6 +146,8 @@ class SimulationLoop:
         try:
             while not self._stop.is_set():
                 self._run_calls()
+                for hook in self.step_hooks:
+                    hook(self.world, self.sim_time_ns)
                 self.world.step()
                 self.sim_time_ns += self.step_ns
                 self._check_waiters()

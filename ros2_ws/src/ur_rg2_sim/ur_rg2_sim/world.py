@@ -1,4 +1,4 @@
-"""The pybullet world: floor, UR arm with RG2 gripper, ball. Plain Python, no ROS.
+"""The pybullet world: floor, pedestal, UR arm with RG2 gripper, ball. Plain Python, no ROS.
 
 Everything here runs on one thread (pybullet clients are not thread-safe); the node feeds it
 commands from that thread only.
@@ -10,6 +10,7 @@ import functools
 import math
 from pathlib import Path
 import tempfile
+from typing import Optional
 
 import pybullet
 
@@ -19,13 +20,33 @@ from ur_rg2_sim.robot_model import (
     RG2_MAX_FINGER_SPEED,
     RG2_MAX_FORCE,
     RG2_MAX_OPENING,
+    RG2_MIN_FORCE,
     TCP_LINK,
     JointLimit,
     joint_limits,
     write_robot_urdf,
 )
 
-DEFAULT_BALL_POSITION = (0.45, -0.35, 0.03)
+# In front of the robot, in the reach of the UR3 as well as the UR5, 0.5 m from the base axis.
+DEFAULT_BALL_POSITION = (0.4, -0.3, 0.03)
+
+# The arm stands on a pedestal, as in a real cell: the UR zero pose (the default home) holds
+# the arm out level with the shoulder, which puts the wrist and the open RG2's lower finger up
+# to 73 mm (UR5) below the base plane. On this riser home clears the floor by 127 mm, room for
+# the first jogs down before the gripper meets the floor. base_link sits on top, PEDESTAL_HEIGHT
+# above the world origin. One height for both models: with the gripper pointing down, the
+# floor stays in reach from 0.3 to 0.9 m from the base axis (UR5), 0.3 to 0.55 m (UR3); the
+# elbow's +-180 degrees end it nearer in (tests/test_sim_reach.py).
+PEDESTAL_HEIGHT = 0.2  # m, floor to base_link
+_PEDESTAL_WIDTH = 0.20  # m, a square steel column a little wider than the UR5's 149 mm base
+_PLATE_WIDTH = 0.22  # m, the mounting plate the UR base is bolted to
+_PLATE_THICKNESS = 0.015  # m
+_PEDESTAL_COLOUR = (0.27, 0.29, 0.32, 1.0)  # painted steel
+_PLATE_COLOUR = (0.55, 0.57, 0.6, 1.0)  # bare aluminium
+# Inverse kinematics: the least bend (rad) of elbow and wrist_1 it starts from, and how many
+# times at most it restarts pybullet's solver.
+_IK_SEED_BEND = 1.0
+_IK_ROUNDS = 10
 BALL_MASS = 0.05  # kg, a light foam ball the RG2's 40 N holds easily
 
 # Contact settings that make a friction grasp hold: rubber pads, a ball that neither spins nor
@@ -78,10 +99,13 @@ class SimWorld:
                                           solverResidualThreshold=1e-4)
         self._p.setGravity(0, 0, -9.81)
         self.floor = self._create_floor()
+        self.pedestal_height = PEDESTAL_HEIGHT
+        self.pedestal = self._create_pedestal()
         self._model_dir = tempfile.TemporaryDirectory(prefix='ur_rg2_sim-')
-        urdf = write_robot_urdf(config.robot_model, Path(self._model_dir.name))
-        self.limits: dict[str, JointLimit] = joint_limits(urdf)
-        self.robot = self._p.loadURDF(str(urdf), [0, 0, 0], useFixedBase=True,
+        self.urdf = write_robot_urdf(config.robot_model, Path(self._model_dir.name))
+        self.limits: dict[str, JointLimit] = joint_limits(self.urdf)
+        self.robot = self._p.loadURDF(str(self.urdf), [0, 0, self.pedestal_height],
+                                      useFixedBase=True,
                                       flags=pybullet.URDF_USE_INERTIA_FROM_FILE)
         self._joint_index = {
             self._p.getJointInfo(self.robot, i)[1].decode(): i
@@ -98,8 +122,7 @@ class SimWorld:
         self.set_arm_positions(dict(zip(ARM_JOINTS, config.home_position)))
         for name in GRIPPER_JOINTS:  # the RG2 starts fully open
             self._p.resetJointState(self.robot, self._joint_index[name], RG2_MAX_OPENING / 2)
-        self.gripper_target = RG2_MAX_OPENING
-        self._drive_gripper()
+        self.command_gripper(RG2_MAX_OPENING)
         self.ball = self._create_ball()
         self.extra_bodies: list[int] = []
 
@@ -117,12 +140,25 @@ class SimWorld:
         self._p.changeDynamics(floor, -1, lateralFriction=1.0)
         return floor
 
+    def _create_pedestal(self) -> int:
+        height = self.pedestal_height
+        column = (_PEDESTAL_WIDTH / 2, _PEDESTAL_WIDTH / 2, (height - _PLATE_THICKNESS) / 2)
+        plate = (_PLATE_WIDTH / 2, _PLATE_WIDTH / 2, _PLATE_THICKNESS / 2)
+        centres = [[0, 0, column[2]], [0, 0, height - plate[2]]]
+        collision = self._p.createCollisionShapeArray(
+            [pybullet.GEOM_BOX] * 2, halfExtents=[column, plate], collisionFramePositions=centres)
+        visual = self._p.createVisualShapeArray(
+            [pybullet.GEOM_BOX] * 2, halfExtents=[column, plate], visualFramePositions=centres,
+            rgbaColors=[_PEDESTAL_COLOUR, _PLATE_COLOUR])
+        return self._p.createMultiBody(0, collision, visual)
+
     def _configure_contacts(self) -> None:
-        # The UR zero pose (the default home) stretches the arm out at shoulder height with
-        # the wrist and gripper reaching just below the base plane; the arm therefore passes
-        # through the floor instead of fighting it, while it still collides with the ball.
-        for link in range(-1, self._p.getNumJoints(self.robot)):
-            self._p.setCollisionFilterPair(self.robot, self.floor, link, -1, 0)
+        # The floor and the pedestal are solid for the whole arm and gripper, except where the
+        # base sits on the plate by design (its mesh reaches a few mm into it). Self-collision
+        # stays off, pybullet's default: neighbouring UR link meshes overlap at the joints and
+        # would lock them; the price is that an arm folded far enough passes through itself.
+        for link in (-1, self._link_index['base_link'], self._link_index['base']):
+            self._p.setCollisionFilterPair(self.robot, self.pedestal, link, -1, 0)
         # The RG2's linkage moves both fingers together: a gear constraint keeps them
         # symmetric, so a grasped object is centred between them instead of pushed aside.
         gear = self._p.createConstraint(
@@ -157,15 +193,21 @@ class SimWorld:
         limit = self.limits[name]
         return min(max(position, limit.lower), limit.upper)
 
-    def set_arm_targets(self, targets: Mapping[str, float]) -> dict[str, float]:
-        """Move the named arm joints toward new targets (clamped); return the targets set."""
+    def set_arm_targets(self, targets: Mapping[str, float],
+                        velocities: Optional[Mapping[str, float]] = None) -> dict[str, float]:
+        """Move the named arm joints toward new targets (clamped); return the targets set.
+
+        ``velocities`` (rad/s), given by a trajectory, are fed forward so that the joints
+        follow a moving target without lagging behind it.
+        """
         applied = {name: self.clamp(name, value) for name, value in targets.items()}
         self.arm_targets.update(applied)
         for name, target in applied.items():
             limit = self.limits[name]
             self._p.setJointMotorControl2(
                 self.robot, self._joint_index[name], pybullet.POSITION_CONTROL,
-                targetPosition=target, force=limit.effort, maxVelocity=limit.velocity)
+                targetPosition=target, force=limit.effort, maxVelocity=limit.velocity,
+                targetVelocity=velocities[name] if velocities else 0.0)
         return applied
 
     def jog_arm(self, deltas: Mapping[str, float]) -> dict[str, float]:
@@ -184,25 +226,35 @@ class SimWorld:
 
     def open_gripper(self) -> None:
         """Drive the fingers to the full 110 mm opening."""
-        self.gripper_target = RG2_MAX_OPENING
-        self._drive_gripper()
+        self.command_gripper(RG2_MAX_OPENING)
 
     def close_gripper(self) -> None:
         """Drive the fingers closed with the RG2's maximum force; an object stops them."""
-        self.gripper_target = 0.0
-        self._drive_gripper()
+        self.command_gripper(0.0)
 
-    def _drive_gripper(self) -> None:
+    def command_gripper(self, opening: float, force: float = RG2_MAX_FORCE) -> tuple[float, float]:
+        """Drive the fingers to ``opening`` (m) pushing with at most ``force`` (N).
+
+        Both are clamped to the RG2's range (0-110 mm, 3-40 N); returns the values used.
+        """
+        self.gripper_target = min(max(opening, 0.0), RG2_MAX_OPENING)
+        self.gripper_force = min(max(force, RG2_MIN_FORCE), RG2_MAX_FORCE)
         for name in GRIPPER_JOINTS:
             self._p.setJointMotorControl2(
                 self.robot, self._joint_index[name], pybullet.POSITION_CONTROL,
-                targetPosition=self.gripper_target / 2, force=RG2_MAX_FORCE,
+                targetPosition=self.gripper_target / 2, force=self.gripper_force,
                 maxVelocity=RG2_MAX_FINGER_SPEED)
+        return self.gripper_target, self.gripper_force
 
     def gripper_opening(self) -> float:
         """Return the distance between the finger pads, metres."""
         return sum(self._p.getJointState(self.robot, self._joint_index[name])[0]
                    for name in GRIPPER_JOINTS)
+
+    def gripper_effort(self) -> float:
+        """Return the force the finger motors push with, N (the grip force on an object)."""
+        return sum(abs(self._p.getJointState(self.robot, self._joint_index[name])[3])
+                   for name in GRIPPER_JOINTS) / len(GRIPPER_JOINTS)
 
     def gripper_stopped(self) -> bool:
         """Return whether both fingers have stopped moving (at the target or blocked)."""
@@ -236,9 +288,17 @@ class SimWorld:
                                      computeForwardKinematics=True)
         return state[4], state[5]
 
+    def link_index(self, link: str) -> int:
+        """Return pybullet's index of a robot link (for contact and collision queries)."""
+        return self._link_index[link]
+
     def body_position(self, body: int) -> tuple[float, float, float]:
         """Return the world position of a body's base (e.g. ``world.ball``)."""
         return self._p.getBasePositionAndOrientation(body)[0]
+
+    def body_pose(self, body: int) -> tuple[tuple, tuple]:
+        """Return the world position and xyzw orientation of a body's base."""
+        return self._p.getBasePositionAndOrientation(body)
 
     def set_ball_position(self, position: Sequence[float]) -> None:
         """Move the ball to ``position`` at rest."""
@@ -251,17 +311,40 @@ class SimWorld:
 
     def inverse_kinematics(self, position: Sequence[float],
                            orientation: Sequence[float] | None = None) -> dict[str, float]:
-        """Return arm joint positions that put the gripper's TCP at a world pose."""
+        """Return arm joint positions that put the gripper's TCP at a world pose.
+
+        The solution is the posture of a UR working over a table: elbow up, wrist ahead of
+        the forearm. The search starts from the current joints with the elbow and wrist_1 bent
+        that way (at least ``_IK_SEED_BEND`` rad): from the stretched home pose it would find
+        elbow-down solutions, which push the upper arm into the floor, or a folded wrist with
+        some 20 cm less reach.
+        """
         movable = [i for i in range(self._p.getNumJoints(self.robot))
                    if self._p.getJointInfo(self.robot, i)[2] != pybullet.JOINT_FIXED]
         lower, upper = zip(*[self._p.getJointInfo(self.robot, i)[8:10] for i in movable])
-        rest = [self._p.getJointState(self.robot, i)[0] for i in movable]
-        solution = self._p.calculateInverseKinematics(
-            self.robot, self._link_index[TCP_LINK], list(position),
-            targetOrientation=None if orientation is None else list(orientation),
-            lowerLimits=list(lower), upperLimits=list(upper),
-            jointRanges=[u - lo for lo, u in zip(lower, upper)], restPoses=rest,
-            maxNumIterations=200, residualThreshold=1e-5)
+        seed = [self._p.getJointState(self.robot, i)[0] for i in movable]
+        elbow = movable.index(self._joint_index['elbow_joint'])
+        wrist = movable.index(self._joint_index['wrist_1_joint'])
+        seed[elbow] = max(seed[elbow], _IK_SEED_BEND)
+        seed[wrist] = min(seed[wrist], -_IK_SEED_BEND)
+        # Given the start joints, pybullet takes the target in the base frame.
+        base_position, base_orientation = self._p.getBasePositionAndOrientation(self.robot)
+        to_base = self._p.invertTransform(base_position, base_orientation)
+        local_position, local_orientation = self._p.multiplyTransforms(
+            *to_base, list(position), [0, 0, 0, 1] if orientation is None else list(orientation))
+        # pybullet's solver stops short far from its start (it limits each iteration's step):
+        # restarting it from its own answer converges within a few rounds.
+        for _ in range(_IK_ROUNDS):
+            solution = self._p.calculateInverseKinematics(
+                self.robot, self._link_index[TCP_LINK], local_position,
+                targetOrientation=None if orientation is None else local_orientation,
+                lowerLimits=list(lower), upperLimits=list(upper),
+                jointRanges=[u - lo for lo, u in zip(lower, upper)], restPoses=seed,
+                currentPositions=seed, maxNumIterations=200, residualThreshold=1e-5)
+            converged = max(abs(a - b) for a, b in zip(solution, seed)) < 1e-6
+            seed = list(solution)
+            if converged:
+                break
         by_index = dict(zip(movable, solution))
         return {name: _wrap(by_index[self._joint_index[name]]) for name in ARM_JOINTS}
 

@@ -7,7 +7,7 @@ import sys
 import threading
 import time
 
-from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
+from geometry_msgs.msg import TransformStamped
 import rclpy
 from rclpy.client import Client
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
@@ -19,21 +19,29 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
+from ur_rg2_sim.parameters import ParameterSpec, declare_parameters
 
 from ur_rg2_teleop.display import Console, SettleWatcher, arm_values, format_angles
 from ur_rg2_teleop.keymap import (
     JOINT_NAMES,
     MAX_STEP_DEG,
+    MAX_STEP_MM,
     MIN_STEP_DEG,
+    MIN_STEP_MM,
     SERVICES,
+    STEP_LADDER_MM,
     CallService,
     Command,
     Jog,
+    Mode,
     action_for,
     describe_key,
+    describe_step,
     help_text,
     larger_step,
+    mode_line,
     smaller_step,
+    tool_step,
 )
 from ur_rg2_teleop.terminal import KeyReader, Stop, raw_mode, signal_pipe
 
@@ -42,6 +50,10 @@ USAGE_ERROR = 2
 _SPIN_CHECK_PERIOD = 0.5
 # Every jog is relative, so none may be dropped: room for a burst of pasted or repeated keys.
 _JOG_QUEUE_DEPTH = 100
+# Tool-mode steps are along and about this frame's axes.
+TOOL_FRAME = 'base_link'
+# Services whose success means the arm moved: the pose is shown once it settles.
+_ARM_SERVICES = ('reset', 'pick_ball')
 
 
 class KeysNode(Node):
@@ -50,12 +62,17 @@ class KeysNode(Node):
     def __init__(self, console: Console, **kwargs) -> None:
         super().__init__('ur_rg2_teleop', **kwargs)
         self._console = console
-        self.declare_parameter('step_deg', 5.0, ParameterDescriptor(
-            description='Degrees one jog key moves its joint; + and - change it',
-            floating_point_range=[FloatingPointRange(
-                from_value=MIN_STEP_DEG, to_value=MAX_STEP_DEG, step=0.0)],
-        ))
+        declare_parameters(self, [
+            ParameterSpec('step_deg', 5.0, 'Degrees one jog key moves its joint (or, in tool '
+                          'mode, turns the TCP); + and - change it in joint mode',
+                          bounds=(MIN_STEP_DEG, MAX_STEP_DEG)),
+            ParameterSpec('step_mm', 10.0, 'Millimetres one jog key moves the TCP in tool mode; '
+                          '+ and - change it in tool mode', bounds=(MIN_STEP_MM, MAX_STEP_MM)),
+        ])
+        self._mode = Mode.JOINT
         self._jog_publisher = self.create_publisher(JointState, 'joint_jog', _JOG_QUEUE_DEPTH)
+        self._tool_jog_publisher = self.create_publisher(
+            TransformStamped, 'tool_jog', _JOG_QUEUE_DEPTH)
         self._trigger_clients: dict[str, Client] = {
             name: self.create_client(Trigger, name) for name in SERVICES}
         self.create_subscription(
@@ -71,19 +88,39 @@ class KeysNode(Node):
         """Current jog step in degrees."""
         return self.get_parameter('step_deg').value
 
+    @property
+    def step_mm(self) -> float:
+        """Current tool-mode TCP step in millimetres."""
+        return self.get_parameter('step_mm').value
+
+    @property
+    def mode(self) -> Mode:
+        """What the jog keys move."""
+        return self._mode
+
     def handle_key(self, key: str) -> bool:
         """Act on one key; return False when it asks to quit."""
         action = action_for(key)
-        if isinstance(action, Jog):
+        if isinstance(action, Jog) and self._mode is Mode.TOOL:
+            self._tool_jog(action)
+        elif isinstance(action, Jog):
             self._jog(action)
         elif isinstance(action, CallService):
             self._call(action.service)
         elif action in (Command.STEP_UP, Command.STEP_DOWN):
             change = larger_step if action is Command.STEP_UP else smaller_step
-            self.set_parameters([Parameter('step_deg', value=change(self.step_deg))])
-            self._console.line(f'step {self.step_deg:g} deg')
+            if self._mode is Mode.TOOL:
+                self.set_parameters([Parameter('step_mm', value=change(self.step_mm,
+                                                                       STEP_LADDER_MM))])
+                self._console.line(describe_step(self.step_mm, 'mm', STEP_LADDER_MM))
+            else:
+                self.set_parameters([Parameter('step_deg', value=change(self.step_deg))])
+                self._console.line(describe_step(self.step_deg))
+        elif action is Command.MODE:
+            self._mode = Mode.TOOL if self._mode is Mode.JOINT else Mode.JOINT
+            self._console.line(mode_line(self._mode, self.step_deg, self.step_mm))
         elif action is Command.HELP:
-            self._console.line(help_text(self.step_deg))
+            self._console.line(help_text(self.step_deg, self._mode, self.step_mm))
         elif action is Command.QUIT:
             return False
         else:
@@ -105,6 +142,22 @@ class KeysNode(Node):
         elif no_states:
             self._console.line('no joint_states received yet: angles cannot be shown')
 
+    def _tool_jog(self, jog: Jog) -> None:
+        translation, rotation = tool_step(jog, self.step_mm, self.step_deg)
+        message = TransformStamped()
+        message.header.stamp = self.get_clock().now().to_msg()
+        message.header.frame_id = TOOL_FRAME
+        message.child_frame_id = TOOL_FRAME
+        t, r = message.transform.translation, message.transform.rotation
+        t.x, t.y, t.z = translation
+        r.x, r.y, r.z, r.w = rotation
+        self._tool_jog_publisher.publish(message)
+        with self._lock:
+            self._watcher.moved(time.monotonic())
+        if self._tool_jog_publisher.get_subscription_count() == 0:
+            self._console.line(f'{self._tool_jog_publisher.topic_name}: nobody listens '
+                               '(is the motion node running?)')
+
     def _call(self, service: str) -> None:
         client = self._trigger_clients[service]
         name = self.resolve_service_name(service)
@@ -112,7 +165,7 @@ class KeysNode(Node):
             self._console.line(f'{name}: service not available')
             return
         future = client.call_async(Trigger.Request())
-        future.add_done_callback(partial(self._on_response, name, service == 'reset'))
+        future.add_done_callback(partial(self._on_response, name, service in _ARM_SERVICES))
 
     def _on_response(self, name: str, moves_arm: bool, future: Future) -> None:
         error = future.exception()
@@ -137,7 +190,8 @@ class KeysNode(Node):
             self._angles = angles
             show = self._watcher.observe(time.monotonic(), speeds)
         if show:
-            self._console.line(format_angles(angles, self.step_deg))
+            self._console.line(f'{self._mode.value} mode | '
+                               f'{format_angles(angles, self.step_deg)}')
 
 
 def _spin(executor: SingleThreadedExecutor, errors: list[BaseException]) -> None:
@@ -163,7 +217,8 @@ def main(args: list[str] | None = None) -> int:
     stdin = 0
     if not os.isatty(stdin):
         print('keys: standard input is not a terminal; keys reads single key presses, so run it '
-              'in an interactive terminal (for example: ros2 run ur_rg2_teleop keys)',
+              'in an interactive terminal (for example: scripts/run, or keys after source '
+              'scripts/env.sh; ros2 run ur_rg2_teleop keys in a ROS install)',
               file=sys.stderr)
         return USAGE_ERROR
     console = Console()
@@ -179,7 +234,7 @@ def main(args: list[str] | None = None) -> int:
             executor.add_node(node)
             spinner.start()
             with raw_mode(stdin):
-                console.line(help_text(node.step_deg))
+                console.line(help_text(node.step_deg, node.mode, node.step_mm))
                 _key_loop(node, KeyReader(stdin, stop_fd), spinner, spin_errors)
     except (Stop, EOFError):
         pass

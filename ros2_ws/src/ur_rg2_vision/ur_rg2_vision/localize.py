@@ -1,22 +1,32 @@
-"""The ball's 3D centre from a registered depth image and the camera intrinsics. No ROS.
+"""The ball's 3D centre and radius from a registered depth image and the camera intrinsics.
 
-Only pixels of the ball's colour inside the detected circle are used, so an occluder in front
-of the ball (a gripper finger, an arm link) contributes no depth; mixed pixels on the ball's rim
-and anything else that slipped through are dropped as outliers of the sphere fit.
+No ROS. Only pixels of the ball's colour inside the detected circle are used, so an occluder in
+front of the ball (a gripper finger, an arm link) contributes no depth; mixed pixels on the
+ball's rim and anything else that slipped through are dropped as outliers of the sphere fits.
 
-1. Start: along the viewing ray through the circle centre, each ball pixel's depth plus the
-   sphere's height over the pixel (``radius * sqrt(1 - rho^2)``, rho = the pixel's distance
-   from the centre over the circle radius) estimates the distance to the centre; take the median.
-2. Refine: Gauss-Newton fit of a sphere of the known radius to the back-projected pixels,
-   trimming points whose residual is far beyond the median absolute deviation.
-3. Check: the fitted sphere must explain the depth, and a ball of that radius at that
-   distance must look as large as the detected circle. A cube of the ball's colour whose
-   outline looks round from afar has flat faces that a ball-sized sphere does not fit, or is
-   the wrong size for the ball.
+The ball's size is measured, not assumed (unless ``ball_radius`` is given). Two estimates:
+
+1. Outline and depth: the detected circle is the image of the cone tangent to the sphere, of
+   half-angle alpha; a sphere of radius ``distance * sin(alpha)`` fills that cone at every
+   distance. Each ball pixel's depth fixes the one distance at which that sphere's surface
+   passes through it; the median over the pixels is robust to outliers. Precise to about
+   half a pixel of the circle's radius: a few per cent on a small, far ball.
+2. Depth alone: a sphere with free centre and radius fitted to the back-projected pixels
+   (algebraic least squares on the points near estimate 1, then Gauss-Newton of the geometric
+   residuals, trimming points far beyond their median absolute deviation). Precise where the
+   ball covers many pixels; on a small cap its radius is uncertain. Its uncertainty: the fit's
+   covariance, the residuals' rms, and a few per cent for a surface that is no perfect sphere.
+
+The two must agree (in curvature, within their uncertainties): a flat patch of the ball's colour
+has the outline of a ball but no curvature, a cube's faces have the wrong one. The radius is
+their inverse-variance weighted mean. A final fit of a sphere of that radius gives the centre,
+which must explain the depth (residuals), lie behind the surface it was fitted to, and look as
+large as the detected circle.
 """
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+import math
 
 import numpy as np
 
@@ -24,82 +34,111 @@ from ur_rg2_vision.detector import Detection, least_squares_step
 
 _CORE = 0.85  # use pixels within this fraction of the circle radius (the rim mixes depths)
 _MIN_POINTS = 6
+_MAX_POINTS = 800  # surface points fitted: plenty for sub-millimetre fits, bounded time
 _ITERATIONS = 6
+_CONVERGED = 1e-5  # m: a step this small with the same points kept ends a fit
 _TRIM_SIGMAS = 3.0
 _TRIM_FLOOR = 0.001  # m: residuals this close to the median are never trimmed
 _FIRST_TRIM_FLOOR = 0.2  # of the radius, in the first round
 _MIN_KEPT_FRACTION = 0.6
 _MAX_RMS_FRACTION = 0.06  # of the radius: worse fits are not a sphere of that size
 _SIZE_TOLERANCE = 1.25  # the detected circle's radius may be this factor off the expected
+_MIN_RADIUS = 0.005  # m: the range of balls measured (the sim makes 0.005-0.5 m)
+_MAX_RADIUS = 0.5
+_CIRCLE_SIGMA_PX = 0.5  # uncertainty of the detected circle's radius
+_AGREE_SIGMAS = 3.0  # the two radius estimates agree within this many standard deviations
+_AGREE_FRACTION = 0.15  # ... plus this fraction of the curvature (model error)
+_MIN_CENTRE_BEHIND = 0.4  # of the radius: the centre behind the median surface point
+# Of the radius: a real surface is no perfect sphere (a rendered one is a polyhedron inside it,
+# a sensor smooths and warps it), and that error does not average out over pixels.
+_SURFACE_MODEL_ERROR = 0.04
 
 
 @dataclass(frozen=True)
 class BallPosition:
-    """The ball's centre in the camera's optical frame and how well the sphere fits."""
+    """The ball's centre in the camera's optical frame, its radius, how well the sphere fits."""
 
     x: float  # m, right
     y: float  # m, down
     z: float  # m, forward
+    radius: float  # m: measured, or the radius given
     rms: float  # m, residual of the sphere fit
     points: int  # depth pixels in the fit
 
 
+@dataclass(frozen=True)
+class _Fit:
+    centre: np.ndarray
+    radius: float
+    keep: np.ndarray  # bool, the points not trimmed
+    rms: float
+    radius_sigma: float  # m, standard deviation of a free radius (0 when it was fixed)
+
+
 def locate_ball(detection: Detection, depth: np.ndarray, k: np.ndarray,
-                ball_radius: float) -> BallPosition | None:
+                ball_radius: float = 0.0) -> BallPosition | None:
     """Return the centre of the detected ball, or None when the depth does not show a ball.
 
     ``depth`` is metres along the optical axis, registered to the colour image the detection
     comes from; non-finite and non-positive values mean no return. ``k`` is the 3x3 camera
-    matrix, ``ball_radius`` in metres.
+    matrix. ``ball_radius`` in metres fixes the radius; 0 measures it.
     """
     fx, fy, cx, cy = k[0, 0], k[1, 1], k[0, 2], k[1, 2]
     cols, rows = detection.pixels()
     rho = np.hypot(cols - detection.u, rows - detection.v) / detection.radius
     core = rho <= _CORE
     if core.sum() >= _MIN_POINTS:  # a tiny ball has (almost) no core: use all its pixels
-        cols, rows, rho = cols[core], rows[core], rho[core]
+        cols, rows = cols[core], rows[core]
+    if len(cols) > _MAX_POINTS:  # an even spread over the ball, the same for the same frame
+        pick = np.linspace(0, len(cols) - 1, _MAX_POINTS).astype(int)
+        cols, rows = cols[pick], rows[pick]
     z = depth[rows, cols].astype(np.float64)
     valid = np.isfinite(z) & (z > 0)
     if valid.sum() < _MIN_POINTS:
         return None
-    cols, rows, rho, z = cols[valid], rows[valid], rho[valid], z[valid]
+    cols, rows, z = cols[valid], rows[valid], z[valid]
     points = np.column_stack([(cols - cx) / fx * z, (rows - cy) / fy * z, z])
     ray = np.array([(detection.u - cx) / fx, (detection.v - cy) / fy, 1.0])
     ray /= np.linalg.norm(ray)
-    distance = np.median(points @ ray + ball_radius * np.sqrt(np.clip(1 - rho ** 2, 0, 1)))
-    centre = ray * distance
-    keep = np.ones(len(points), dtype=bool)
-    floor = _FIRST_TRIM_FLOOR * ball_radius  # the start is a few millimetres off
-    for _ in range(_ITERATIONS):
-        residual = np.linalg.norm(points - centre, axis=1) - ball_radius
-        offset = np.median(residual[keep])
-        spread = 1.4826 * np.median(np.abs(residual[keep] - offset))
-        keep = np.abs(residual - offset) <= max(_TRIM_SIGMAS * spread, floor)
-        if keep.sum() < _MIN_POINTS:
+    along = points @ ray
+    lateral2 = np.maximum((points ** 2).sum(axis=1) - along ** 2, 0.0)
+    focal = (fx + fy) / 2
+    # The sphere's outline is a cone of half-angle asin(radius / distance), on the axis a
+    # circle of radius f tan(half-angle): the detector reports it as if seen on the axis.
+    sin_alpha = math.sin(math.atan(detection.radius / focal))
+    if ball_radius > 0:
+        radius = ball_radius
+        # Start: along the viewing ray, each pixel's depth fixes where the centre of a sphere
+        # of that radius through it lies; the median.
+        start = ray * _median(along + np.sqrt(np.maximum(radius ** 2 - lateral2, 0.0)))
+        fit = _robust_fit(points, start, radius, free_radius=False)
+    else:
+        measured = _measure_radius(points, ray, along, lateral2, sin_alpha, focal)
+        if measured is None:
             return None
-        centre = _gauss_newton_step(points[keep], centre, ball_radius)
-        floor = _TRIM_FLOOR
-    residual = np.linalg.norm(points[keep] - centre, axis=1) - ball_radius
-    rms = float(np.sqrt(np.mean(residual ** 2)))
-    if keep.mean() < _MIN_KEPT_FRACTION or rms > _MAX_RMS_FRACTION * ball_radius:
+        radius, free = measured
+        # Start: the free fit's sphere, grown or shrunk away from its front.
+        start = free.centre * (1 + (radius - free.radius) / np.linalg.norm(free.centre))
+        fit = _robust_fit(points, start, radius, free_radius=False, keep=free.keep)
+    if fit is None or fit.keep.mean() < _MIN_KEPT_FRACTION or not _is_sphere(points, fit):
         return None
-    # The sphere's outline is a cone of half-angle asin(radius / distance): on the axis a
-    # circle of radius f tan(half-angle). Off the axis by theta, the image is stretched by up to
-    # 1 / cos(theta)^2 unless the detector was given the camera matrix to undo that.
+    centre = fit.centre
     distance = float(np.linalg.norm(centre))
-    if not ball_radius < distance:
+    if not radius < distance:
         return None
+    # Off the axis by theta, the image is stretched by up to 1 / cos(theta)^2 unless the
+    # detector was given the camera matrix to undo that.
     cos_theta = centre[2] / distance
-    f_tan = (fx + fy) / 2 * ball_radius / np.sqrt(distance ** 2 - ball_radius ** 2)
+    f_tan = focal * radius / np.sqrt(distance ** 2 - radius ** 2)
     if not (f_tan / _SIZE_TOLERANCE <= detection.radius
             <= f_tan / cos_theta ** 2 * _SIZE_TOLERANCE):
         return None
-    return BallPosition(x=float(centre[0]), y=float(centre[1]), z=float(centre[2]), rms=rms,
-                        points=int(keep.sum()))
+    return BallPosition(x=float(centre[0]), y=float(centre[1]), z=float(centre[2]),
+                        radius=float(radius), rms=fit.rms, points=int(fit.keep.sum()))
 
 
 def locate_first(detections: Sequence[Detection], depth: np.ndarray, k: np.ndarray,
-                 ball_radius: float) -> BallPosition | None:
+                 ball_radius: float = 0.0) -> BallPosition | None:
     """Return the position of the first detection that the depth confirms as a ball."""
     for detection in detections:
         position = locate_ball(detection, depth, k, ball_radius)
@@ -108,8 +147,124 @@ def locate_first(detections: Sequence[Detection], depth: np.ndarray, k: np.ndarr
     return None
 
 
-def _gauss_newton_step(points: np.ndarray, centre: np.ndarray, radius: float) -> np.ndarray:
-    """One Gauss-Newton step of min sum (|p - c| - radius)^2 over the centre c."""
+def _measure_radius(points: np.ndarray, ray: np.ndarray, along: np.ndarray,
+                    lateral2: np.ndarray, sin_alpha: float, focal: float
+                    ) -> tuple[float, _Fit] | None:
+    """Return (radius, the free fit) from outline and depth; None when the two disagree."""
+    # 1. The sphere of radius distance * sin(alpha) through each point: solve
+    #    |p - distance * ray| = distance * sin(alpha) for the distance.
+    cone = 1 - sin_alpha ** 2
+    distance = float(_median(
+        (along + np.sqrt(np.maximum(sin_alpha ** 2 * (along ** 2 + lateral2) - lateral2, 0.0)))
+        / cone))
+    outline_radius = distance * sin_alpha
+    # Half a pixel on the circle's radius moves the radius by about distance / f / cone.
+    outline_sigma = distance * _CIRCLE_SIGMA_PX / focal / cone
+    # 2. Depth alone, from the points near estimate 1.
+    centre = ray * distance
+    residual = np.linalg.norm(points - centre, axis=1) - outline_radius
+    near = np.abs(residual - _median(residual)) <= _FIRST_TRIM_FLOOR * outline_radius
+    if near.sum() < _MIN_POINTS:
+        return None
+    centre, radius = _algebraic_sphere(points[near], centre, outline_radius)
+    fit = _robust_fit(points, centre, radius, free_radius=True)
+    if fit is None or not np.isfinite(fit.radius_sigma) or fit.radius <= 0:
+        return None
+    # Agreement in curvature, where a plane (curvature 0, radius unbounded) is not a special
+    # case: 1/r has the uncertainty sigma_r / r^2.
+    disagreement = abs(1 / fit.radius - 1 / outline_radius)
+    allowed = (_AGREE_SIGMAS * math.hypot(fit.radius_sigma / fit.radius ** 2,
+                                          outline_sigma / outline_radius ** 2)
+               + _AGREE_FRACTION / outline_radius)
+    if disagreement > allowed:
+        return None
+    weights = 1 / fit.radius_sigma ** 2, 1 / outline_sigma ** 2
+    radius = (weights[0] * fit.radius + weights[1] * outline_radius) / sum(weights)
+    if not _MIN_RADIUS <= radius <= _MAX_RADIUS:
+        return None
+    return float(radius), fit
+
+
+def _median(values: np.ndarray) -> float:
+    """Return the (upper) median: np.median's checks cost more than the partition here."""
+    middle = len(values) // 2
+    return float(np.partition(values, middle)[middle])
+
+
+def _algebraic_sphere(points: np.ndarray, centre: np.ndarray, radius: float
+                      ) -> tuple[np.ndarray, float]:
+    """Return the least-squares sphere of |p|^2 = 2 c.p + d; the start given if degenerate.
+
+    Linear, so it needs no start, but it weighs points unevenly: a start for the geometric fit.
+    """
+    offset = points.mean(axis=0)  # conditioning: points around the origin
+    local = points - offset
+    design = np.column_stack([2 * local, np.ones(len(local))])
+    solution, *_ = np.linalg.lstsq(design, (local ** 2).sum(axis=1), rcond=None)
+    squared = solution[3] + solution[:3] @ solution[:3]
+    if not (np.isfinite(squared) and squared > 0):
+        return centre, radius
+    return solution[:3] + offset, float(np.sqrt(squared))
+
+
+def _robust_fit(points: np.ndarray, centre: np.ndarray, radius: float, free_radius: bool,
+                keep: np.ndarray | None = None) -> _Fit | None:
+    """Gauss-Newton sphere fit with trimming; the radius fixed unless ``free_radius``.
+
+    ``keep``: the points a fit close to this start kept; without it, the start may be a few
+    millimetres off and the first round trims only points far off.
+    """
+    if keep is None:
+        kept, floor = np.ones(len(points), dtype=bool), _FIRST_TRIM_FLOOR * radius
+    else:
+        kept, floor = keep, _TRIM_FLOOR
+    for _ in range(_ITERATIONS):
+        jacobian, residual = _sphere_jacobian(points, centre, radius, free_radius)
+        offset = _median(residual[kept])
+        spread = 1.4826 * _median(np.abs(residual[kept] - offset))
+        keep = np.abs(residual - offset) <= max(_TRIM_SIGMAS * spread, floor)
+        if keep.sum() < _MIN_POINTS:
+            return None
+        step = least_squares_step(jacobian[keep], residual[keep])
+        centre = centre + step[:3]
+        if free_radius:
+            radius += step[3]
+        floor = _TRIM_FLOOR
+        converged = np.abs(step).max() < _CONVERGED and (keep == kept).all()
+        kept = keep
+        if converged:
+            break
+    jacobian, residual = _sphere_jacobian(points[kept], centre, radius, free_radius)
+    rms = float(np.sqrt(np.mean(residual ** 2)))
+    sigma = 0.0
+    if free_radius:
+        try:
+            covariance = np.linalg.inv(jacobian.T @ jacobian)
+        except np.linalg.LinAlgError:
+            return None
+        # Residuals of a real surface are not independent (a rendered sphere's faces, a
+        # sensor's correlated noise): the radius is known no better than their rms.
+        sigma = math.hypot(rms * math.sqrt(max(covariance[3, 3], 0.0)), rms,
+                           _SURFACE_MODEL_ERROR * radius)
+    return _Fit(centre, float(radius), kept, rms, sigma)
+
+
+def _is_sphere(points: np.ndarray, fit: _Fit) -> bool:
+    """Return whether the fitted sphere explains the depth and lies behind the surface."""
+    if fit.rms > _MAX_RMS_FRACTION * fit.radius:
+        return False
+    distance = np.linalg.norm(fit.centre)
+    # A concave or flat surface can be fitted from the wrong side; a ball faces the camera.
+    surface = _median(points[fit.keep] @ (fit.centre / distance))
+    return bool(distance - surface >= _MIN_CENTRE_BEHIND * fit.radius)
+
+
+def _sphere_jacobian(points: np.ndarray, centre: np.ndarray, radius: float,
+                     free_radius: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Return the Jacobian and residuals of |p - centre| - radius (over centre, radius)."""
     offset = centre - points
-    distance = np.maximum(np.linalg.norm(offset, axis=1), 1e-9)
-    return centre + least_squares_step(offset / distance[:, None], distance - radius)
+    distance = np.maximum(np.sqrt(np.einsum('ij,ij->i', offset, offset)), 1e-9)
+    jacobian = offset / distance[:, None]
+    if free_radius:
+        jacobian = np.column_stack([jacobian, -np.ones(len(points))])
+    return jacobian, distance - radius

@@ -2,24 +2,76 @@
 
 For headless users (SSH, containers): open the logged URL. The HTTP side lives in
 :mod:`ur_rg2_vision.viewer_web`; this module only wires ROS topics into its hub.
+
+The ball's position comes in the camera's optical frame. It is shown in ``world`` and
+``base_link`` too, through the transform tree (``/tf_static``). Without a tree (a sim that
+publishes none) the world coordinates are computed from the sim's camera pose, asked from the
+sim node's ``camera_position`` and ``camera_look_at`` parameters every few seconds (they may
+change). The last ``pick_ball`` result of the motion node is shown as it comes.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 import ipaddress
 import sys
+import time
 
 from geometry_msgs.msg import PointStamped
-from rcl_interfaces.msg import IntegerRange, ParameterDescriptor
+import numpy as np
+from rcl_interfaces.srv import GetParameters
+from rclpy.exceptions import ParameterException
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.parameter import parameter_value_to_python
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.task import Future
 from sensor_msgs.msg import Image, JointState
+from std_msgs.msg import String
+from tf2_msgs.msg import TFMessage
+from ur_rg2_sim.camera_pose import optical_rotation
+from ur_rg2_sim.parameters import ParameterSpec, declare_parameters
+from ur_rg2_sim.tf_buffer import FrameLookupError, TransformBuffer, transform_point
 
 from ur_rg2_vision.ros_image import image_to_rgb
 from ur_rg2_vision.spin import run_node
-from ur_rg2_vision.viewer_web import FrameHub, ViewerServer, finite_or_none, joint_summary
+from ur_rg2_vision.viewer_web import FrameHub, ViewerServer, ball_summary, joint_summary
 
 NODE_NAME = 'ur_rg2_viewer'
+SIM_NODE = 'ur_rg2_sim'
+# The frame of the sim's colour images, the one its camera pose parameters describe.
+CAMERA_FRAME = 'camera_color_optical_frame'
+_POSE_PARAMETERS = ('camera_position', 'camera_look_at')
+WORLD_FRAME = 'world'
+BASE_FRAME = 'base_link'
+# /tf_static and the motion node's pick result: latched, the last one arrives on subscribing.
+_LATCHED_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
+_POSE_PERIOD_S = 2.0  # how often the sim is asked for its camera pose
+_POSE_ANSWER_S = 10.0  # a question unanswered after this long is given up
+
+
+def camera_to_world(position: Sequence[float], look_at: Sequence[float]
+                    ) -> Callable[[Sequence[float]], np.ndarray]:
+    """Return the conversion of optical-frame points to the world frame for a camera pose.
+
+    The pose is the sim's (``camera_position``, ``camera_look_at``); ValueError if invalid.
+    """
+    rotation = optical_rotation(position, look_at)
+    origin = np.asarray(position, dtype=float)
+    return lambda point: rotation @ np.asarray(point, dtype=float) + origin
+
+_PARAMETERS = (
+    ParameterSpec('address', '127.0.0.1', 'Address to serve on. Loopback by default: the page '
+                  'has no authentication, so only set another address on a trusted network.',
+                  read_only=True),
+    ParameterSpec('port', 8080, 'TCP port to serve on (0: any free port, logged at start-up).',
+                  read_only=True, bounds=(0, 65535)),
+    ParameterSpec('image_topic', 'ball/image', 'Colour image topic to stream: the annotated '
+                  'ball/image, or camera/color/image_raw to watch the raw camera without vision.',
+                  read_only=True),
+    ParameterSpec('jpeg_quality', 80, 'JPEG quality of the stream and snapshots, 1-100.',
+                  read_only=True, bounds=(1, 100)),
+)
 
 
 def _is_loopback(address: str) -> bool:
@@ -34,20 +86,9 @@ class ViewerNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__(NODE_NAME, **kwargs)
-        address = self.declare_parameter('address', '127.0.0.1', ParameterDescriptor(
-            description='Address to serve on. Loopback by default: the page has no '
-                        'authentication, so only set another address on a trusted network.',
-            read_only=True)).value
-        port = self.declare_parameter('port', 8080, ParameterDescriptor(
-            description='TCP port to serve on (0: any free port, logged at start-up).',
-            read_only=True, integer_range=[IntegerRange(from_value=0, to_value=65535)])).value
-        image_topic = self.declare_parameter('image_topic', 'ball/image', ParameterDescriptor(
-            description='Colour image topic to stream: the annotated ball/image, or '
-                        'camera/color/image_raw to watch the raw camera without vision.',
-            read_only=True)).value
-        quality = self.declare_parameter('jpeg_quality', 80, ParameterDescriptor(
-            description='JPEG quality of the stream and snapshots, 1-100.', read_only=True,
-            integer_range=[IntegerRange(from_value=1, to_value=100)])).value
+        values = declare_parameters(self, _PARAMETERS)
+        address, port, image_topic = values['address'], values['port'], values['image_topic']
+        quality = values['jpeg_quality']
 
         self._hub = FrameHub(quality)
         # Reliable: across processes best effort loses most 640x480 frames here. Depth 5 as
@@ -57,6 +98,14 @@ class ViewerNode(Node):
                                  QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE))
         self.create_subscription(JointState, 'joint_states', self._on_joint_state, 10)
         self.create_subscription(PointStamped, 'ball/position', self._on_ball, 10)
+        # The camera and base_link are fixed in the world: /tf_static has all the ball needs.
+        self._tree = TransformBuffer()
+        self.create_subscription(TFMessage, '/tf_static', self._tree.add_message, _LATCHED_QOS)
+        self.create_subscription(String, 'pick_ball/result', self._on_pick_result, _LATCHED_QOS)
+        self._to_world: Callable[[Sequence[float]], np.ndarray] | None = None
+        self._pose_client = self.create_client(GetParameters, f'{SIM_NODE}/get_parameters')
+        self._pose_question: tuple[Future, float] | None = None
+        self.create_timer(_POSE_PERIOD_S, self._ask_camera_pose)
 
         # Last, so that nothing before it can fail (e.g. a signal mid-construction) and leave
         # the server thread running with no node to stop it.
@@ -93,8 +142,44 @@ class ViewerNode(Node):
 
     def _on_ball(self, msg: PointStamped) -> None:
         point = msg.point
-        self._hub.set_state('ball', {'frame_id': msg.header.frame_id, 'x': finite_or_none(point.x),
-                                     'y': finite_or_none(point.y), 'z': finite_or_none(point.z)})
+        frame = msg.header.frame_id
+        try:
+            to_world, to_base = (self._tree.lookup(target, frame)
+                                 for target in (WORLD_FRAME, BASE_FRAME))
+            summary = ball_summary(frame, (point.x, point.y, point.z),
+                                   lambda p: transform_point(to_world, p),
+                                   lambda p: transform_point(to_base, p),
+                                   'through the transform tree')
+        except FrameLookupError:
+            summary = ball_summary(frame, (point.x, point.y, point.z),
+                                   self._to_world if frame == CAMERA_FRAME else None)
+        self._hub.set_state('ball', summary)
+
+    def _on_pick_result(self, msg: String) -> None:
+        self._hub.set_state('pick', msg.data)
+
+    def _ask_camera_pose(self) -> None:
+        if self._pose_question is not None:
+            future, asked = self._pose_question
+            if time.monotonic() - asked < _POSE_ANSWER_S:
+                return
+            self._pose_client.remove_pending_request(future)  # the sim went away meanwhile
+            self._pose_question = None
+        if not self._pose_client.service_is_ready():
+            return
+        future = self._pose_client.call_async(GetParameters.Request(names=_POSE_PARAMETERS))
+        future.add_done_callback(self._on_camera_pose)
+        self._pose_question = future, time.monotonic()
+
+    def _on_camera_pose(self, future: Future) -> None:
+        self._pose_question = None
+        try:
+            position, look_at = (parameter_value_to_python(value)
+                                 for value in future.result().values)
+            self._to_world = camera_to_world(position, look_at)
+        except (ValueError, TypeError) as error:  # not (yet) a sim with a valid camera pose
+            self._to_world = None
+            self.get_logger().debug(f'no world coordinates: {error}')
 
     def destroy_node(self) -> None:
         """Stop the web server (ending every stream), then the node."""
@@ -103,8 +188,9 @@ class ViewerNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    """Run the viewer until Ctrl-C / SIGTERM; exit code 1 when the port cannot be bound."""
-    return run_node(ViewerNode, args, 'ur_rg2_viewer', startup_errors=(OSError,))
+    """Run the viewer until Ctrl-C / SIGTERM; exit code 1 on a bad parameter or a busy port."""
+    return run_node(ViewerNode, args, NODE_NAME,
+                    startup_errors=(OSError, ValueError, ParameterException))
 
 
 if __name__ == '__main__':

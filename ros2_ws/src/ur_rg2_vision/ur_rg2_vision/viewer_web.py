@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import asyncio
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 import importlib.resources
 import math
 import threading
@@ -57,6 +57,27 @@ def joint_summary(names: Sequence[str], positions: Sequence[float]) -> dict[str,
     fingers = [joint['position'] for joint in gripper]
     opening_mm = 1000.0 * sum(fingers) if fingers and None not in fingers else None
     return {'joints': arm, 'gripper': {'joints': gripper, 'opening_mm': opening_mm}}
+
+
+def ball_summary(frame_id: str, point: Sequence[float],
+                 to_world: Callable[[Sequence[float]], Sequence[float]] | None,
+                 to_base_link: Callable[[Sequence[float]], Sequence[float]] | None = None,
+                 via: str = "from the sim's camera pose") -> dict[str, Any]:
+    """Summarise a ball position for the page: in its own frame, the world and base_link.
+
+    ``to_world`` and ``to_base_link`` convert a point of ``frame_id`` to those frames; ``None``
+    when that is not known (yet), and then ``world`` or ``base_link`` is ``None``. ``via``
+    says where the conversion comes from (the transform tree, or the sim's camera pose).
+    """
+    x, y, z = (finite_or_none(value) for value in point)
+    summary = {'frame_id': frame_id, 'x': x, 'y': y, 'z': z}
+    for name, convert in (('world', to_world), ('base_link', to_base_link)):
+        summary[name] = None
+        if convert is not None and None not in (x, y, z):
+            cx, cy, cz = (finite_or_none(float(value)) for value in convert(point))
+            summary[name] = {'frame_id': name, 'x': cx, 'y': cy, 'z': cz}
+    summary['via'] = via if summary['world'] or summary['base_link'] else None
+    return summary
 
 
 class FrameHub:

@@ -15,18 +15,14 @@ the next frame a little.
 
 from collections import OrderedDict
 from dataclasses import dataclass
+import os
 import sys
 import time
 
 import cv2
 from geometry_msgs.msg import Point, PointStamped
 import numpy as np
-from rcl_interfaces.msg import (
-    FloatingPointRange,
-    IntegerRange,
-    ParameterDescriptor,
-    SetParametersResult,
-)
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -34,6 +30,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
+from ur_rg2_sim.parameters import ParameterSpec, declare_parameters
 
 from ur_rg2_vision.detector import (
     DEFAULT_MIN_RADIUS_PX,
@@ -55,8 +52,28 @@ _IMAGE_QOS = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
 _PENDING_FRAMES = 4  # colour frames waiting for their depth (~130 ms at 30 Hz)
 _EARLY_DEPTHS = 4  # depth images that came before their colour image
 _WARN_PERIOD_S = 10.0  # a persisting input problem is logged again after this long
+# At start-up the camera_info subscription may match the camera a little after the images do:
+# frames without camera_info are only worth a warning after this many, and this long.
+_INFO_GRACE_FRAMES = 10
+_INFO_GRACE_S = 2.0
 _DRAW_COLOR = (0, 255, 0)
 
+_PARAMETERS = (
+    ParameterSpec('frames_dir', 'frames', 'Directory for saved frames (created when needed); '
+                  'a relative path is relative to the directory the node was started from.'),
+    ParameterSpec('save_every_n', 0, 'Save every Nth colour frame (and its depth) '
+                  'automatically; 0: off.', bounds=(0, 1_000_000)),
+    ParameterSpec('hsv_lower', list(RED.lower), 'Ball colour, lower HSV bound [H 0-179, S 0-255, '
+                  'V 0-255] (OpenCV scale). A lower hue above the upper hue wraps around 0, as '
+                  'red does.'),
+    ParameterSpec('hsv_upper', list(RED.upper), 'Ball colour, upper HSV bound [H, S, V]; see '
+                  'hsv_lower.'),
+    ParameterSpec('min_radius_px', DEFAULT_MIN_RADIUS_PX, 'Smallest ball radius in pixels that '
+                  'counts as a ball.', bounds=(1.0, 1000.0)),
+    ParameterSpec('ball_radius', 0.0, 'Ball radius in metres; 0: measure it in every frame from '
+                  'the depth and the outline. A radius given is assumed: balls of another size '
+                  'are not found.', bounds=(0.0, 10.0)),
+)
 _DETECTION_PARAMETERS = ('hsv_lower', 'hsv_upper', 'min_radius_px', 'ball_radius')
 
 
@@ -82,8 +99,9 @@ def _detection_config(values: dict) -> _DetectionConfig:
     """Return the detection settings for parameter values; ValueError if they are invalid."""
     color = HsvRange(tuple(int(x) for x in values['hsv_lower']),
                      tuple(int(x) for x in values['hsv_upper']))
-    if not values['ball_radius'] > 0:
-        raise ValueError(f'ball_radius must be positive, got {values["ball_radius"]}')
+    if not values['ball_radius'] >= 0:
+        raise ValueError(f'ball_radius must be 0 (measure) or positive, got '
+                         f'{values["ball_radius"]}')
     return _DetectionConfig(BallDetector(color, values['min_radius_px']),
                             float(values['ball_radius']))
 
@@ -108,32 +126,17 @@ class VisionNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__(NODE_NAME, **kwargs)
-        self.declare_parameter('frames_dir', 'frames', ParameterDescriptor(
-            description='Directory for saved frames (created when needed), relative to the '
-                        "node's working directory unless absolute."))
-        self.declare_parameter('save_every_n', 0, ParameterDescriptor(
-            description='Save every Nth colour frame (and its depth) automatically; 0: off.',
-            integer_range=[IntegerRange(from_value=0, to_value=1_000_000, step=1)]))
-        self.declare_parameter('hsv_lower', list(RED.lower), ParameterDescriptor(
-            description='Ball colour, lower HSV bound [H 0-179, S 0-255, V 0-255] (OpenCV '
-                        'scale). A lower hue above the upper hue wraps around 0, as red does.'))
-        self.declare_parameter('hsv_upper', list(RED.upper), ParameterDescriptor(
-            description='Ball colour, upper HSV bound [H, S, V]; see hsv_lower.'))
-        self.declare_parameter('min_radius_px', DEFAULT_MIN_RADIUS_PX, ParameterDescriptor(
-            description='Smallest ball radius in pixels that counts as a ball.',
-            floating_point_range=[FloatingPointRange(from_value=1.0, to_value=1000.0)]))
-        self.declare_parameter('ball_radius', 0.03, ParameterDescriptor(
-            description='Ball radius in metres: the depth fit places the centre this far '
-                        'behind the visible surface.',
-            floating_point_range=[FloatingPointRange(from_value=0.001, to_value=10.0)]))
-        self._config = _detection_config(
-            {name: self.get_parameter(name).value for name in _DETECTION_PARAMETERS})
-        self._frames_dir = self.get_parameter('frames_dir').value
-        self._save_every_n = self.get_parameter('save_every_n').value
+        values = declare_parameters(self, _PARAMETERS)
+        self._config = _detection_config(values)
+        # Absolute from here on: logs and save_frame answers say where the files really are.
+        self._frames_dir = os.path.abspath(values['frames_dir'])
+        self._save_every_n = values['save_every_n']
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         self._camera: tuple[np.ndarray, tuple[int, int]] | None = None  # k, (width, height)
         self._awaiting_info: _Frame | None = None  # a complete frame without a fitting info
+        # (since, frames): when ball frames began to lack a fitting camera_info, how many did.
+        self._info_missing: tuple[float, int] | None = None
         self._pending: OrderedDict[tuple[int, int], _Frame] = OrderedDict()
         self._early_depths: OrderedDict[tuple[int, int], np.ndarray] = OrderedDict()
         self._color_count = 0
@@ -152,7 +155,7 @@ class VisionNode(Node):
         self.create_service(Trigger, 'vision/save_frame', self._on_save_frame)
         self.get_logger().info(
             f'looking for the ball in {self.resolve_topic_name("camera/color/image_raw")}; '
-            f'frames are saved to {self._frames_dir!r}')
+            f'frames are saved to {self._frames_dir}')
 
     # -- parameters ---------------------------------------------------------------------------
 
@@ -166,7 +169,8 @@ class VisionNode(Node):
         self._config = config
         for parameter in parameters:
             if parameter.name == 'frames_dir':
-                self._frames_dir = parameter.value
+                self._frames_dir = os.path.abspath(parameter.value)
+                self.get_logger().info(f'frames are saved to {self._frames_dir}')
             elif parameter.name == 'save_every_n':
                 self._save_every_n = parameter.value
         return SetParametersResult(successful=True)
@@ -236,17 +240,27 @@ class VisionNode(Node):
         """Pair a colour frame with its depth: publish the ball's position, autosave."""
         frame.depth = depth
         self._latest_complete = frame
-        if frame.detections and not self._info_fits(frame):
+        fits = self._info_fits(frame)
+        if fits:
+            self._info_missing = None
+        if frame.detections and not fits:
             # Its camera_info may still be on the way: the next camera_info retries it.
-            if self._awaiting_info is not None:
-                self._warn('locate', 'no camera/color/camera_info for the '
-                           f'{frame.rgb.shape[1]}x{frame.rgb.shape[0]} colour images: '
-                           'no ball/position')
+            self._note_missing_info(frame)
             self._awaiting_info = frame
         else:
             self._publish_position(frame)
         if frame.autosave:
             self._autosave(frame)
+
+    def _note_missing_info(self, frame: _Frame) -> None:
+        """Count a ball frame without a fitting camera_info; warn once that persists."""
+        now = time.monotonic()
+        since, frames = self._info_missing or (now, 0)
+        self._info_missing = since, frames + 1
+        if frames + 1 >= _INFO_GRACE_FRAMES and now - since >= _INFO_GRACE_S:
+            self._warn('locate', 'no camera/color/camera_info for the '
+                       f'{frame.rgb.shape[1]}x{frame.rgb.shape[0]} colour images: '
+                       'no ball/position')
 
     def _publish_position(self, frame: _Frame) -> None:
         position = self._locate(frame)
@@ -308,7 +322,9 @@ class VisionNode(Node):
         response.message = ' '.join(paths)
         if frame.depth is None:
             response.message += ' (no depth image for this frame)'
-        self.get_logger().info(f'saved {response.message}')
+        # Debug: the answer reaches the caller (keys prints it); an info line would repeat it
+        # in the same terminal.
+        self.get_logger().debug(f'saved {response.message}')
         return response
 
 

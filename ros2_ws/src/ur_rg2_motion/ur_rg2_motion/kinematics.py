@@ -1,0 +1,473 @@
+"""Closed-form forward and inverse kinematics of the UR5 / UR3 with the RG2. Plain Python.
+
+The arm is described by Universal Robots' published DH parameters. The DH base frame is the
+UR controller's ``base`` frame (ROS's ``base``, 180 degrees about z from ``base_link``) and the
+DH flange frame is ``tool0``. The inverse is the analytic solution of K. P. Hawkins, "Analytic
+Inverse Kinematics for the Universal Robots UR-5/UR-10 Arms" (2013), the one behind ROS's
+ur_kinematics: shoulder pan from the wrist centre's distance to the base axis, wrist 2 from
+the flange's height along the shoulder's axis, wrist 3 from the flange's orientation, then the
+planar shoulder-elbow-wrist 1 triangle. Two choices each for shoulder, wrist and elbow give up
+to 8 solutions. Forward kinematics is vectorised with numpy (many joint vectors, or every
+frame of the chain, at once); the inverse is scalar, which for one pose is faster.
+
+:class:`ArmKinematics` adds what a controller needs on top: the fixed ``base_link``->``base``
+and ``tool0``->``rg2_tcp`` transforms (read from the robot description), the joint limits,
+the floor and the pedestal; :meth:`ArmKinematics.solve` picks the solution nearest the current
+joints that respects all of them, or raises :class:`KinematicsError` with the reason.
+"""
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+import math
+import xml.etree.ElementTree as ET
+
+import numpy as np
+
+ARM_JOINTS = (
+    'shoulder_pan_joint',
+    'shoulder_lift_joint',
+    'elbow_joint',
+    'wrist_1_joint',
+    'wrist_2_joint',
+    'wrist_3_joint',
+)
+BASE_LINK = 'base_link'
+DH_BASE = 'base'
+FLANGE = 'tool0'
+TCP = 'rg2_tcp'
+
+# Below these the formulas lose a degree of freedom (see ArmKinematics.solve).
+_WRIST_SINGULAR = 1e-9  # |sin(wrist_2)|: wrist 1 and wrist 3 axes parallel
+_BOUNDARY_SINGULAR = 1e-6  # |sin(elbow)| or wrist centre distance - d4 (m): workspace boundary
+# acos arguments this far beyond +-1 are rounding, not an unreachable pose.
+_ACOS_SLACK = 1e-9
+
+
+@dataclass(frozen=True)
+class DhParameters:
+    """Universal Robots' DH parameters of one arm model, metres."""
+
+    d1: float
+    a2: float
+    a3: float
+    d4: float
+    d5: float
+    d6: float
+
+    @property
+    def a(self) -> np.ndarray:
+        """Link lengths a_i."""
+        return np.array([0.0, self.a2, self.a3, 0.0, 0.0, 0.0])
+
+    @property
+    def d(self) -> np.ndarray:
+        """Link offsets d_i."""
+        return np.array([self.d1, 0.0, 0.0, self.d4, self.d5, self.d6])
+
+
+# From Universal Robots' "DH parameters for calculations of kinematics and dynamics".
+UR_DH = {
+    'ur5': DhParameters(0.089159, -0.425, -0.39225, 0.10915, 0.09465, 0.0823),
+    'ur3': DhParameters(0.1519, -0.24365, -0.21325, 0.11235, 0.08535, 0.0819),
+}
+_ALPHA = np.array([math.pi / 2, 0.0, 0.0, math.pi / 2, -math.pi / 2, 0.0])
+_COS_ALPHA = np.round(np.cos(_ALPHA))  # exactly 0 and +-1, as the DH table means
+_SIN_ALPHA = np.round(np.sin(_ALPHA))
+
+
+class KinematicsError(ValueError):
+    """A target pose has no acceptable joint solution; ``reason`` says which check failed.
+
+    Reasons: ``invalid`` (not a finite rigid transform), ``unreachable`` (out of the arm's
+    reach), ``singular`` (on the workspace boundary, where the arm loses a degree of freedom),
+    ``joint_limits``, ``floor`` (the arm or the TCP would go below the floor), ``pedestal``.
+    """
+
+    def __init__(self, reason: str, message: str) -> None:
+        super().__init__(message)
+        self.reason = reason
+
+
+def forward(dh: DhParameters, q: np.ndarray, all_frames: bool = False) -> np.ndarray:
+    """Return the DH base -> flange transforms (..., 4, 4) of joint vectors ``q`` (..., 6).
+
+    With ``all_frames`` the result is (..., 6, 4, 4): base -> frame i for i = 1..6.
+    """
+    q = np.asarray(q, dtype=float)
+    ct, st = np.cos(q), np.sin(q)
+    zero, one = np.zeros_like(q), np.ones_like(q)
+    links = np.stack([
+        ct, -st * _COS_ALPHA, st * _SIN_ALPHA, dh.a * ct,
+        st, ct * _COS_ALPHA, -ct * _SIN_ALPHA, dh.a * st,
+        zero, zero + _SIN_ALPHA, zero + _COS_ALPHA, zero + dh.d,
+        zero, zero, zero, one,
+    ], axis=-1).reshape(q.shape + (4, 4))
+    frames = [links[..., 0, :, :]]
+    for i in range(1, 6):
+        frames.append(frames[-1] @ links[..., i, :, :])
+    return np.stack(frames, axis=-3) if all_frames else frames[-1]
+
+
+def inverse(dh: DhParameters, pose: np.ndarray, wrist_3: float = 0.0) -> list[tuple]:
+    """Return every joint solution (up to 8 tuples of 6, in [-pi, pi]) of a flange pose.
+
+    ``pose`` is DH base -> flange (4x4). Branches: shoulder left/right x wrist up/down x elbow
+    up/down, the ones that exist. Where wrist 1 and wrist 3 are aligned (wrist 2 at 0 or pi)
+    only their sum is defined: wrist 3 is then set to ``wrist_3`` (the current one keeps the
+    wrist still). Scalar arithmetic: for one pose it is several times faster than numpy.
+    """
+    (nx, ox, zx, px), (ny, oy, zy, py), (nz, oz, zz, pz) = pose.tolist()[:3]
+    d1, a2, a3, d4, d5, d6 = dh.d1, dh.a2, dh.a3, dh.d4, dh.d5, dh.d6
+    solutions = []
+    # Shoulder pan: the wrist centre (flange minus d6 along z) lies d4 off the arm's plane.
+    wx, wy = px - d6 * zx, py - d6 * zy
+    radius = math.hypot(wx, wy)
+    if radius == 0.0 or abs(d4) > radius * (1 + _ACOS_SLACK):
+        return solutions
+    spread = math.acos(min(d4 / radius, 1.0))
+    heading = math.atan2(wy, wx) + math.pi / 2
+    for q1 in (heading + spread, heading - spread):
+        c1, s1 = math.cos(q1), math.sin(q1)
+        # Wrist 2: the flange's offset along the shoulder axis is d4 + d6 cos(q5).
+        height = (px * s1 - py * c1 - d4) / d6
+        if abs(height) > 1 + _ACOS_SLACK:
+            continue
+        tilt = math.acos(max(-1.0, min(height, 1.0)))
+        nc, oc, zc = nx * c1 + ny * s1, ox * c1 + oy * s1, zx * c1 + zy * s1
+        u, v = nx * s1 - ny * c1, ox * s1 - oy * c1
+        for q5 in (tilt, -tilt):
+            c5, s5 = math.cos(q5), math.sin(q5)
+            # |(u, v)| is |sin q5| from the orientation, exact where acos near 1 is not.
+            if math.hypot(u, v) < _WRIST_SINGULAR:
+                q6 = wrist_3
+            else:
+                # Wrist 3 from the flange's x and y axes seen along the shoulder axis.
+                sign = 1.0 if s5 > 0 else -1.0
+                q6 = math.atan2(-v * sign, u * sign)
+            c6, s6 = math.cos(q6), math.sin(q6)
+            # The planar chain shoulder lift, elbow, wrist 1 from frame 1 to frame 4.
+            x04x = -s5 * zc - c5 * (s6 * oc - c6 * nc)
+            x04y = c5 * (nz * c6 - oz * s6) - zz * s5
+            p13x = d5 * (s6 * nc + c6 * oc) - d6 * zc + px * c1 + py * s1
+            p13y = pz - d1 - d6 * zz + d5 * (oz * c6 + nz * s6)
+            c3 = (p13x * p13x + p13y * p13y - a2 * a2 - a3 * a3) / (2 * a2 * a3)
+            if abs(c3) > 1 + _ACOS_SLACK:
+                continue
+            bend = math.acos(max(-1.0, min(c3, 1.0)))
+            for q3 in (bend, -bend):
+                ea, eb = a2 + a3 * math.cos(q3), a3 * math.sin(q3)
+                q2 = math.atan2(ea * p13y - eb * p13x, ea * p13x + eb * p13y)
+                c23, s23 = math.cos(q2 + q3), math.sin(q2 + q3)
+                q4 = math.atan2(c23 * x04y - s23 * x04x, x04x * c23 + x04y * s23)
+                solutions.append(tuple(math.remainder(a, 2 * math.pi)
+                                       for a in (q1, q2, q3, q4, q5, q6)))
+    return solutions
+
+
+def rotation_angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Return the angle (rad) of the rotation between the rotation parts of poses a and b."""
+    r = np.swapaxes(a[..., :3, :3], -1, -2) @ b[..., :3, :3]
+    sine = np.linalg.norm(np.stack([r[..., 2, 1] - r[..., 1, 2], r[..., 0, 2] - r[..., 2, 0],
+                                    r[..., 1, 0] - r[..., 0, 1]], axis=-1), axis=-1) / 2
+    return np.arctan2(sine, (np.trace(r, axis1=-2, axis2=-1) - 1) / 2)
+
+
+def quaternion_of(matrix: np.ndarray) -> tuple[float, float, float, float]:
+    """Return the xyzw unit quaternion (w >= 0) of a rotation or pose matrix."""
+    m = np.asarray(matrix, dtype=float)[:3, :3]
+    trace = m[0, 0] + m[1, 1] + m[2, 2]
+    # Shepperd's method: divide by the largest of the four candidates, for accuracy.
+    i = int(np.argmax([trace, m[0, 0], m[1, 1], m[2, 2]]))
+    if i == 0:
+        s = 2 * math.sqrt(1 + trace)
+        q = ((m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, s / 4)
+    elif i == 1:
+        s = 2 * math.sqrt(1 + m[0, 0] - m[1, 1] - m[2, 2])
+        q = (s / 4, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s, (m[2, 1] - m[1, 2]) / s)
+    elif i == 2:
+        s = 2 * math.sqrt(1 + m[1, 1] - m[0, 0] - m[2, 2])
+        q = ((m[0, 1] + m[1, 0]) / s, s / 4, (m[1, 2] + m[2, 1]) / s, (m[0, 2] - m[2, 0]) / s)
+    else:
+        s = 2 * math.sqrt(1 + m[2, 2] - m[0, 0] - m[1, 1])
+        q = ((m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, s / 4, (m[1, 0] - m[0, 1]) / s)
+    sign = -1.0 if q[3] < 0 else 1.0
+    return tuple(float(sign * c) for c in q)
+
+
+@dataclass(frozen=True)
+class Box:
+    """An axis-aligned box in ``base_link`` that no checked point of the arm may enter."""
+
+    lower: tuple[float, float, float]
+    upper: tuple[float, float, float]
+
+
+@dataclass
+class ArmKinematics:
+    """A UR arm with the RG2: TCP poses in ``base_link`` <-> joint positions.
+
+    ``floor_z`` is the floor's height in ``base_link`` (minus the pedestal's height);
+    ``clearance`` the least height above it of the TCP, the finger tips and the wrist and
+    elbow joints; ``keep_out`` boxes (the pedestal) they may not enter.
+    """
+
+    dh: DhParameters
+    base_in_base_link: np.ndarray
+    tcp_in_flange: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+    floor_z: float = -math.inf
+    clearance: float = 0.0
+    finger_length: float = 0.0
+    keep_out: list[Box] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self._base_inverse = np.linalg.inv(self.base_in_base_link)
+        self._tcp_inverse = np.linalg.inv(self.tcp_in_flange)
+        # Plain floats for the scalar inner loop of solve().
+        self._limits = [(float(lo), float(hi)) for lo, hi in zip(self.lower, self.upper)]
+        self._base_rotation = self.base_in_base_link[:3, :3].tolist()
+        self._base_offset = self.base_in_base_link[:3, 3].tolist()
+
+    @classmethod
+    def from_urdf(cls, urdf: str, model: str | None = None, **checks) -> 'ArmKinematics':
+        """Build from robot description text; ``model`` (ur5, ur3) is told by its shoulder.
+
+        ``checks`` are the floor and obstacle fields (``floor_z``, ``clearance``,
+        ``keep_out``).
+        """
+        chain = urdf_chain(urdf)
+        if model is None:
+            shoulder = chain.get(('base_link', 'shoulder_link'))
+            if shoulder is None:
+                raise KinematicsError('invalid', 'the robot description has no UR shoulder')
+            model = min(UR_DH, key=lambda m: abs(UR_DH[m].d1 - shoulder[2, 3]))
+        if model not in UR_DH:
+            raise KinematicsError('invalid', f'no DH parameters for robot model {model!r}')
+        limits = urdf_joint_limits(urdf)
+        missing = [name for name in ARM_JOINTS if name not in limits]
+        if missing:
+            raise KinematicsError('invalid', f"the robot description lacks {', '.join(missing)}")
+        tcp = fixed_transform(chain, FLANGE, TCP)
+        # The fingers reach past the TCP to the tips of their pads.
+        tip = max((fixed_transform(chain, FLANGE, child)[2, 3] for _, child in chain
+                   if child.endswith('_finger')), default=tcp[2, 3]) + _finger_half(urdf)
+        return cls(
+            dh=UR_DH[model],
+            base_in_base_link=fixed_transform(chain, BASE_LINK, DH_BASE),
+            tcp_in_flange=tcp,
+            lower=np.array([limits[name][0] for name in ARM_JOINTS]),
+            upper=np.array([limits[name][1] for name in ARM_JOINTS]),
+            finger_length=max(tip - tcp[2, 3], 0.0),
+            **checks,
+        )
+
+    @property
+    def model(self) -> str:
+        """The arm model (ur5, ur3) of the DH parameters."""
+        return next(name for name, dh in UR_DH.items() if dh == self.dh)
+
+    def tcp_pose(self, q: Sequence[float] | np.ndarray) -> np.ndarray:
+        """Return ``base_link`` -> ``rg2_tcp`` (..., 4, 4) at joints ``q`` (..., 6)."""
+        return self.base_in_base_link @ forward(self.dh, q) @ self.tcp_in_flange
+
+    def solutions(self, target: np.ndarray, wrist_3: float = 0.0) -> list[tuple]:
+        """Return every IK branch (up to 8 tuples of 6) of a TCP pose in ``base_link``."""
+        flange = self._base_inverse @ np.asarray(target, dtype=float) @ self._tcp_inverse
+        return inverse(self.dh, flange, wrist_3)
+
+    def solve(self, target: np.ndarray, current: Sequence[float]) -> np.ndarray:
+        """Return the joints (6,) nearest ``current`` that put the TCP at ``target``.
+
+        ``target`` is ``base_link`` -> ``rg2_tcp`` (4x4). Each joint is taken modulo 2 pi to
+        the value nearest its current one within the limits; of the branches left, those that
+        keep the TCP, the finger tips, the wrist and the elbow above the floor and out of the
+        keep-out boxes compete, and the nearest (sum of squared joint motions) wins.
+        Raises :class:`KinematicsError` saying why no branch is acceptable (of the reasons the
+        branches met, the last check: keep-out box, then floor, then joint limits).
+        """
+        target = np.asarray(target, dtype=float)
+        check_pose(target)
+        current = [float(c) for c in current]
+        branches = self.solutions(target, current[5])
+        if not branches:
+            raise KinematicsError('unreachable', f"{_where(target)} is out of the arm's reach")
+        # Points that the target alone fixes: the TCP, the finger tips, the wrist centre.
+        flange = target @ self._tcp_inverse
+        fixed = [target[:3, 3], target[:3, 3] + self.finger_length * target[:3, 2],
+                 flange[:3, 3] - self.dh.d6 * flange[:3, 2]]
+        fixed_failure = self._obstacle_failure([p.tolist() for p in fixed])
+        best, best_distance, failures = None, math.inf, set()
+        for branch in branches:
+            q = _within_limits(branch, current, self._limits)
+            if q is None:
+                failures.add('joint_limits')
+                continue
+            failure = fixed_failure or self._obstacle_failure(self._arm_points(q))
+            if failure:
+                failures.add(failure)
+                continue
+            distance = sum((a - b) ** 2 for a, b in zip(q, current))
+            if distance < best_distance:
+                best, best_distance = q, distance
+        if best is None:
+            reason = next(r for r in ('pedestal', 'floor', 'joint_limits') if r in failures)
+            raise KinematicsError(reason, {
+                'joint_limits': f'every solution for {_where(target)} is outside the joint limits',
+                'floor': f'{_where(target)} would put the arm or the gripper below the floor',
+                'pedestal': f'{_where(target)} would put the arm into the pedestal',
+            }[reason])
+        if abs(math.sin(best[2])) < _BOUNDARY_SINGULAR:
+            raise KinematicsError(
+                'singular', f'{_where(target)} needs the elbow fully stretched (a singularity '
+                'on the edge of the reach)')
+        return np.array(best)
+
+    def _arm_points(self, q: Sequence[float]) -> list[tuple[float, float, float]]:
+        """Return the elbow and the wrist 1 and 2 frame origins in ``base_link``."""
+        d1, a2, a3, d4 = self.dh.d1, self.dh.a2, self.dh.a3, self.dh.d4
+        c1, s1 = math.cos(q[0]), math.sin(q[0])
+        # In the arm's vertical plane: the reach from the base axis and the height.
+        reach2 = a2 * math.cos(q[1])
+        reach3 = reach2 + a3 * math.cos(q[1] + q[2])
+        z2 = d1 + a2 * math.sin(q[1])
+        z3 = z2 + a3 * math.sin(q[1] + q[2])
+        rotation, offset = self._base_rotation, self._base_offset
+        return [tuple(r[0] * x + r[1] * y + r[2] * z + o for r, o in zip(rotation, offset))
+                for x, y, z in ((reach2 * c1, reach2 * s1, z2), (reach3 * c1, reach3 * s1, z3),
+                                (reach3 * c1 + d4 * s1, reach3 * s1 - d4 * c1, z3))]
+
+    def _obstacle_failure(self, points: list) -> str | None:
+        """Return 'floor' or 'pedestal' if a point is below the floor or in a keep-out box."""
+        lowest = self.floor_z + self.clearance
+        if any(p[2] < lowest for p in points):
+            return 'floor'
+        for box in self.keep_out:
+            if any(all(lo < c < hi for lo, c, hi in zip(box.lower, p, box.upper))
+                   for p in points):
+                return 'pedestal'
+        return None
+
+
+def _within_limits(q: Sequence[float], current: Sequence[float],
+                   limits: Sequence[tuple[float, float]]) -> list[float] | None:
+    """Return ``q`` with each joint the 2 pi equivalent nearest current inside the limits."""
+    result = []
+    for angle, now, (lo, hi) in zip(q, current, limits):
+        angle = now + math.remainder(angle - now, 2 * math.pi)
+        if angle > hi:
+            angle -= 2 * math.pi
+        elif angle < lo:
+            angle += 2 * math.pi
+        if not lo <= angle <= hi:
+            return None
+        result.append(angle)
+    return result
+
+
+def check_pose(pose: np.ndarray) -> None:
+    """Raise KinematicsError('invalid') unless ``pose`` is a finite 4x4 rigid transform."""
+    if pose.shape != (4, 4) or not np.isfinite(pose).all():
+        raise KinematicsError('invalid', 'the target pose is not finite')
+    r = pose[:3, :3]
+    if np.abs(r.T @ r - np.eye(3)).max() > 1e-6 or np.linalg.det(r) < 0:
+        raise KinematicsError('invalid', 'the target orientation is not a rotation')
+
+
+def _where(target: np.ndarray) -> str:
+    x, y, z = target[:3, 3]
+    return f'the pose at ({x:.3f}, {y:.3f}, {z:.3f}) m'
+
+
+# -- the robot description ----------------------------------------------------------------------
+# ur_rg2_sim.frames parses the whole tree for the sim, but imports pybullet; this module needs
+# only the fixed joints and the arm's limits, without it.
+
+def urdf_chain(urdf: str) -> dict[tuple[str, str], np.ndarray]:
+    """Return each joint's origin (parent -> child at zero motion) by (parent, child)."""
+    try:
+        root = ET.fromstring(urdf)
+    except ET.ParseError as error:
+        raise KinematicsError(
+            'invalid', f'the robot description does not parse: {error}') from None
+    chain = {}
+    for joint in root.iter('joint'):
+        origin = joint.find('origin')
+        xyz = _floats(origin, 'xyz')
+        roll, pitch, yaw = _floats(origin, 'rpy')
+        chain[(joint.find('parent').get('link'), joint.find('child').get('link'))] = (
+            _rpy_matrix(xyz, roll, pitch, yaw))
+    return chain
+
+
+def fixed_transform(chain: dict[tuple[str, str], np.ndarray], ancestor: str,
+                    frame: str) -> np.ndarray:
+    """Return ``ancestor`` -> ``frame`` through the joints of ``chain`` (at zero motion)."""
+    parents = {child: (parent, pose) for (parent, child), pose in chain.items()}
+    pose = np.eye(4)
+    link = frame
+    while link != ancestor:
+        if link not in parents:
+            raise KinematicsError(
+                'invalid', f'the robot description has no chain from {ancestor} to {frame}')
+        parent, edge = parents[link]
+        pose = edge @ pose
+        link = parent
+    return pose
+
+
+def urdf_joint_limits(urdf: str) -> dict[str, tuple[float, float]]:
+    """Return (lower, upper) of each revolute joint of robot description text ``urdf``."""
+    limits = {}
+    for joint in ET.fromstring(urdf).iter('joint'):
+        limit = joint.find('limit')
+        if joint.get('type') == 'revolute' and limit is not None:
+            limits[joint.get('name')] = (float(limit.get('lower')), float(limit.get('upper')))
+        elif joint.get('type') == 'continuous':
+            limits[joint.get('name')] = (-math.inf, math.inf)
+    return limits
+
+
+def urdf_velocity_limits(urdf: str) -> np.ndarray:
+    """Return the six arm joints' velocity limits (rad/s) from robot description text."""
+    limits = {}
+    for joint in ET.fromstring(urdf).iter('joint'):
+        limit = joint.find('limit')
+        if limit is not None and limit.get('velocity') is not None:
+            limits[joint.get('name')] = float(limit.get('velocity'))
+    missing = [name for name in ARM_JOINTS if name not in limits]
+    if missing:
+        raise KinematicsError('invalid', f"no velocity limit for {', '.join(missing)}")
+    return np.array([limits[name] for name in ARM_JOINTS])
+
+
+def _finger_half(urdf: str) -> float:
+    # The finger links' boxes are centred on the finger frame: half the longest box is how far
+    # the pads reach past it along the gripper's z.
+    halves = [0.0]
+    for link in ET.fromstring(urdf).iter('link'):
+        if link.get('name', '').endswith('_finger'):
+            for box in link.iter('box'):
+                halves.append(float(box.get('size').split()[2]) / 2)
+    return max(halves)
+
+
+def _floats(element, attribute: str) -> tuple[float, float, float]:
+    if element is None or element.get(attribute) is None:
+        return (0.0, 0.0, 0.0)
+    x, y, z = (float(v) for v in element.get(attribute).split())
+    return (x, y, z)
+
+
+def _rpy_matrix(xyz: Sequence[float], roll: float, pitch: float, yaw: float) -> np.ndarray:
+    cr, sr = math.cos(roll), math.sin(roll)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    m = np.eye(4)
+    m[:3, :3] = [
+        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+        [-sp, cp * sr, cp * cr],
+    ]
+    m[:3, 3] = xyz
+    return m

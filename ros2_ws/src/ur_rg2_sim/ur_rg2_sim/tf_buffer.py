@@ -1,0 +1,90 @@
+"""A small transform buffer: the latest parent->child transforms from /tf and /tf_static.
+
+tf2_ros is not on PyPI. What the nodes need of it is little: keep the latest transform of each
+child frame and compose the chain between two frames of the tree. The frames they look up
+between (``base_link``, the camera frames, ``world``, ``rg2_tcp``) are fixed relative to each
+other or move with the arm, so no interpolation in time is done: a lookup uses the latest
+transforms. Plain Python, no ROS imports; messages are read by their fields only.
+
+Used by the motion node and the viewer, so it lives in the package every node depends on.
+"""
+
+from collections.abc import Iterable, Sequence
+import threading
+
+import numpy as np
+
+
+def pose_matrix(position: Sequence[float], quaternion: Sequence[float]) -> np.ndarray:
+    """Return the 4x4 matrix of a position and an xyzw unit quaternion."""
+    x, y, z, w = quaternion
+    m = np.eye(4)
+    m[:3, :3] = [
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ]
+    m[:3, 3] = position
+    return m
+
+
+class FrameLookupError(LookupError):
+    """A lookup names a frame the buffer has not heard of, or two unconnected frames."""
+
+
+class TransformBuffer:
+    """Latest parent->child transforms by child frame; thread-safe."""
+
+    def __init__(self) -> None:
+        self._edges: dict[str, tuple[str, np.ndarray]] = {}
+        self._lock = threading.Lock()
+
+    def set_transform(self, parent: str, child: str, transform: np.ndarray) -> None:
+        """Store ``parent`` -> ``child`` (4x4: the child's pose in the parent)."""
+        with self._lock:
+            self._edges[child] = (parent, transform)
+
+    def add_message(self, message) -> None:
+        """Store every transform of a tf2_msgs/TFMessage (or anything with its fields)."""
+        for stamped in message.transforms:
+            t, r = stamped.transform.translation, stamped.transform.rotation
+            self.set_transform(stamped.header.frame_id.lstrip('/'),
+                               stamped.child_frame_id.lstrip('/'),
+                               pose_matrix((t.x, t.y, t.z), (r.x, r.y, r.z, r.w)))
+
+    def frames(self) -> set[str]:
+        """Return every frame heard of, parents and children."""
+        with self._lock:
+            return set(self._edges) | {parent for parent, _ in self._edges.values()}
+
+    def lookup(self, target: str, source: str) -> np.ndarray:
+        """Return the pose of frame ``source`` in frame ``target`` (tf2's lookupTransform)."""
+        target, source = target.lstrip('/'), source.lstrip('/')
+        with self._lock:
+            known = set(self._edges) | {parent for parent, _ in self._edges.values()}
+            for frame in (target, source):
+                if frame not in known:
+                    raise FrameLookupError(f'unknown frame {frame!r} (not on /tf or /tf_static)')
+            target_root, target_pose = self._from_root(target)
+            source_root, source_pose = self._from_root(source)
+        if target_root != source_root:
+            raise FrameLookupError(f'frames {target!r} and {source!r} are not connected')
+        return np.linalg.solve(target_pose, source_pose)
+
+    def _from_root(self, frame: str) -> tuple[str, np.ndarray]:
+        """Return the root of ``frame``'s tree and root -> ``frame``."""
+        pose = np.eye(4)
+        seen = set()
+        while frame in self._edges:
+            if frame in seen:
+                raise FrameLookupError(f'the transforms loop through {frame!r}')
+            seen.add(frame)
+            parent, edge = self._edges[frame]
+            pose = edge @ pose
+            frame = parent
+        return frame, pose
+
+
+def transform_point(transform: np.ndarray, point: Iterable[float]) -> np.ndarray:
+    """Return ``point`` (x, y, z) mapped by the 4x4 ``transform``."""
+    return transform[:3, :3] @ np.asarray(list(point), dtype=float) + transform[:3, 3]

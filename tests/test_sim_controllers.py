@@ -177,13 +177,16 @@ def wait_moving(sim, above: float = 0.2) -> None:
 def test_cancel_holds_the_arm_where_it_is(sim):
     handle, _ = sim.send_goal(sim.arm, slow_goal())
     wait_moving(sim)
-    at_cancel = sim.positions()['shoulder_pan_joint']
+    before_cancel = sim.positions()['shoulder_pan_joint']
     cancel = handle.cancel_goal_async()
     wait_for(cancel.done, 30, 'the cancel response')
+    after_cancel = sim.positions()['shoulder_pan_joint']
     response = sim.result(handle)
     assert response.status == GoalStatus.STATUS_CANCELED
     held = sim.wait_still()
-    assert held[0] == pytest.approx(at_cancel, abs=0.15)
+    # The cancel takes effect somewhere between the request and its answer (a loaded machine
+    # stretches that); from there the arm stops within a short braking distance.
+    assert before_cancel - 0.15 < held[0] < after_cancel + 0.15
     assert held[0] < 1.0
     time.sleep(0.5)
     assert sim.arm_positions() == pytest.approx(held, abs=STILL)

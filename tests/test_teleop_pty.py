@@ -134,6 +134,14 @@ class ArmWatch:
         """Return the gripper joint positions, by joint name order."""
         return [v for name, v in sorted(self.positions.items()) if name.startswith('rg2_')]
 
+    def wait_gripper_away_from(self, positions: list[float], what: str) -> list[float]:
+        """Wait until a gripper joint is more than 0.01 rad from ``positions``; return them."""
+        def away():
+            now = self.gripper()
+            moved = max(abs(n - p) for n, p in zip(now, positions, strict=True)) > 0.01
+            return moved and now
+        return wait_for(away, MOVE_TIMEOUT, f'{what} (from {positions})')
+
 
 def connect_jog(keys: KeysTerminal, arm: ArmWatch) -> None:
     """Press q until the sim moves: jogs sent before discovery completes are lost."""
@@ -187,11 +195,12 @@ def test_keys_drive_the_sim_and_p_quits_restoring_the_terminal(ros_graph, keys):
     keys.press('x')
     arm.wait_near('elbow_joint', elbow - math.radians(5.0), 'elbow -5 deg')
 
-    assert call(keys, 't', '/gripper/close') == 'done'
-    closed = arm.gripper()
-    assert call(keys, 'y', '/gripper/open') == 'done'
+    # Joint states reach this process a little after the service answers: wait for them.
     opened = arm.gripper()
-    assert max(abs(o - c) for o, c in zip(opened, closed, strict=True)) > 0.01, (closed, opened)
+    assert call(keys, 't', '/gripper/close') == 'done'
+    closed = arm.wait_gripper_away_from(opened, 'the gripper closing')
+    assert call(keys, 'y', '/gripper/open') == 'done'
+    arm.wait_gripper_away_from(closed, 'the gripper opening')
 
     assert call(keys, 'l', '/reset') == 'done'
     for joint in ('shoulder_pan_joint', 'elbow_joint'):

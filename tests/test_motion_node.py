@@ -271,6 +271,32 @@ def test_a_pick_while_one_runs_is_refused_and_a_tool_command_cancels_it(rig):
     rig.reach(target)
 
 
+def test_a_reset_while_the_gripper_closes_cancels_the_pick(ros_graph):
+    # Real time: the close takes long enough to reset the arm in the middle of it.
+    rig = Rig(ros_graph, real_time_factor=1.0)
+    fingers: list[float] = []
+    rig.node.create_subscription(JointState, 'joint_states', lambda msg: fingers.append(sum(
+        v for name, v in zip(msg.name, msg.position) if name.startswith('rg2_'))), 100)
+    reset = rig.node.create_client(Trigger, 'reset')
+    wait_for(reset.service_is_ready, TIMEOUT, 'the reset service')
+    ball = PointStamped()
+    ball.header.frame_id = 'world'
+    ball.point.x, ball.point.y, ball.point.z = 0.4, -0.3, 0.03
+    rig.ball.publish(ball)
+    wait_for(lambda: fingers, TIMEOUT, 'joint states')
+    opened = fingers[-1]
+    wait_for(rig.pick_client.service_is_ready, TIMEOUT, 'the pick_ball service')
+    pick = rig.pick_client.call_async(Trigger.Request())
+    wait_for(lambda: abs(fingers[-1] - opened) > 0.01, 60, 'the gripper to start closing')
+    reset_answer = reset.call_async(Trigger.Request())
+    wait_for(pick.done, 60, 'the pick to end')
+    assert reset_answer.done() and reset_answer.result().success
+    assert not pick.result().success
+    assert 'moved by another command while closing the gripper' in pick.result().message
+    # The reset wins: the arm goes home rather than lifting.
+    wait_for(lambda: np.abs(rig.joints()).max() < 0.01, TIMEOUT, 'the arm at home')
+
+
 def test_pick_picks_the_ball_the_vision_node_sees(ros_graph):
     """Seeded placements across the reachable floor in view; never a false claim."""
     from ur_rg2_vision.vision_node import VisionNode

@@ -83,6 +83,7 @@ _MIN_MOVE_DURATION = 0.2  # s
 # The pick starts once no arm joint moves faster than this (rad/s), waiting at most so long.
 _REST_SPEED = 0.02
 _REST_TIMEOUT = 10.0  # s
+_STAYED_TOLERANCE = 0.02  # rad: the arm held at the ball sags less than this as it grips
 # The pick's straight moves must not take more than this share of the joint speed limits.
 _PICK_SPEED_SCALE = 0.7
 
@@ -389,8 +390,10 @@ class MotionNode(Node):
         self._finish_gripper(opening, 'opening the gripper')
         self._straight(arm, plan.grasp, approach, min(scale, _PICK_SPEED_SCALE),
                        'descending to the ball')
+        at_ball = self._current_joints()
         closing = self._start_gripper(0.0)
         result = self._finish_gripper(closing, 'closing the gripper')
+        self._check_arm_stayed(at_ball, 'closing the gripper')
         missed = grasp_check(result.position, result.stalled, plan.radius,
                              self.get_parameter('grasp_tolerance').value)
         if missed:
@@ -417,6 +420,20 @@ class MotionNode(Node):
             if time.monotonic() > deadline:
                 raise PickError(f'the arm did not come to rest within {_REST_TIMEOUT:g} s')
             time.sleep(0.02)
+
+    def _check_arm_stayed(self, joints: np.ndarray, what: str) -> None:
+        """Give up when the arm left ``joints`` during a gripper step: something else drives it.
+
+        The sim's ``reset`` service is such a command that this node cannot see being sent;
+        lifting from where the arm went would override it.
+        """
+        with self._lock:
+            speed = self._speed
+        moved = float(np.abs(self._current_joints() - joints).max())
+        if moved > _STAYED_TOLERANCE or speed >= _REST_SPEED:
+            raise PickCancelledError(
+                f'cancelled: the arm was moved by another command while {what} '
+                f'({math.degrees(moved):.1f} deg away, a reset?)')
 
     def _straight(self, arm: ArmKinematics, pose: np.ndarray, speed: float, scale: float,
                   what: str) -> None:

@@ -1,8 +1,9 @@
 """Publishers of the sim's frames: /tf, /tf_static, robot_description and ball/true_pose.
 
-The transforms come from :mod:`ur_rg2_sim.frames`; this module only fills messages. /tf runs
-at joint_state_rate on the simulation thread, so its message is built once and refilled in
-place: a revolute joint changes only its rotation, a prismatic one only its translation.
+The transforms come from :mod:`ur_rg2_sim.frames`; this module only fills messages. /tf and
+ball/true_pose run at joint_state_rate on the simulation thread (thousands a second at
+real-time factor 0), so they are published as bytes serialized once and rewritten with the
+new numbers (:mod:`ur_rg2_sim.serialized`).
 """
 
 from collections.abc import Sequence
@@ -15,6 +16,7 @@ from std_msgs.msg import String
 from tf2_msgs.msg import TFMessage
 
 from ur_rg2_sim.frames import WORLD_FRAME, FrameTree, camera_transforms
+from ur_rg2_sim.serialized import SerializedMessage
 
 # As tf2_ros's broadcasters and robot_state_publisher: late joiners get the latest message.
 LATCHED_QOS = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
@@ -38,13 +40,14 @@ class FramePublisher:
         description_pub.publish(String(data=description))
         # joint_states order -> the tree's moving-joint order.
         self._order = [list(joint_names).index(name) for name in tree.moving_joint_names]
-        self._moving = [_transform(self._frame(parent), self._frame(child), translation, rotation)
-                        for parent, child, translation, rotation in tree.transforms(
-                            [0.0] * len(self._order))]
-        self._prismatic = [joint.kind == 'prismatic' for joint in tree.moving]
-        self._tf_msg = TFMessage(transforms=self._moving)
-        self._pose_msg = PoseStamped()
-        self._pose_msg.header.frame_id = self._frame(WORLD_FRAME)
+        frames = [(self._frame(parent), self._frame(child))
+                  for parent, child, *_ in tree.transforms([0.0] * len(self._order))]
+        self._tf = SerializedMessage(lambda doubles, words: TFMessage(transforms=[
+            _transform(parent, child, doubles[7 * i:7 * i + 3], doubles[7 * i + 3:7 * i + 7],
+                       Time(sec=int(words[2 * i]), nanosec=int(words[2 * i + 1])))
+            for i, (parent, child) in enumerate(frames)]), 7 * len(frames), 2 * len(frames))
+        self._pose = SerializedMessage(
+            lambda doubles, words: _pose(self._frame(WORLD_FRAME), doubles, words), 7, 2)
 
     def _frame(self, name: str) -> str:
         return self._prefix + name
@@ -62,23 +65,20 @@ class FramePublisher:
                 ball_pose: tuple[Sequence[float], Sequence[float]]) -> None:
         """Publish /tf for joint ``positions`` (joint_states order) and the ball's pose."""
         moving = self._tree.transforms([positions[i] for i in self._order])
-        for message, prismatic, (_, _, translation, rotation) in zip(
-                self._moving, self._prismatic, moving):
-            message.header.stamp = stamp
-            if prismatic:
-                t = message.transform.translation
-                t.x, t.y, t.z = translation
-            else:
-                r = message.transform.rotation
-                r.x, r.y, r.z, r.w = rotation
-        self._tf_pub.publish(self._tf_msg)
-        pose = self._pose_msg
-        pose.header.stamp = stamp
-        (p, o) = ball_pose
-        pose.pose.position.x, pose.pose.position.y, pose.pose.position.z = p
-        q = pose.pose.orientation
-        q.x, q.y, q.z, q.w = o
-        self._true_pose_pub.publish(pose)
+        values = [v for _, _, translation, rotation in moving for v in (*translation, *rotation)]
+        stamp_words = (stamp.sec, stamp.nanosec)
+        self._tf_pub.publish(self._tf.fill(values, stamp_words * len(moving)))
+        self._true_pose_pub.publish(self._pose.fill((*ball_pose[0], *ball_pose[1]), stamp_words))
+
+
+def _pose(frame: str, doubles, words) -> PoseStamped:
+    message = PoseStamped()
+    message.header.frame_id = frame
+    message.header.stamp = Time(sec=int(words[0]), nanosec=int(words[1]))
+    p, q = message.pose.position, message.pose.orientation
+    p.x, p.y, p.z = (float(v) for v in doubles[:3])
+    q.x, q.y, q.z, q.w = (float(v) for v in doubles[3:7])
+    return message
 
 
 def _transform(parent: str, child: str, translation, rotation,

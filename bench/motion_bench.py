@@ -36,10 +36,10 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
-from ur_rg2_motion.kinematics import ArmKinematics, Box, KinematicsError, quaternion_of
+from ur_rg2_motion.kinematics import ArmKinematics, Box, KinematicsError
 from ur_rg2_motion.planning import gripper_down
 from ur_rg2_sim.robot_model import write_robot_urdf
-from ur_rg2_sim.tf_buffer import FrameLookupError, TransformBuffer
+from ur_rg2_sim.tf_buffer import FrameLookupError, TransformBuffer, quaternion_from_matrix
 from ur_rg2_sim.world import PEDESTAL_HEIGHT
 
 from bench.processes import bench_env, node_process
@@ -282,7 +282,7 @@ def jog_latencies(domain_id: int) -> list[float]:
             msg.header.frame_id = 'base_link'
             p, q = msg.pose.position, msg.pose.orientation
             p.x, p.y, p.z = (float(v) for v in start[:3, 3])
-            q.x, q.y, q.z, q.w = quaternion_of(start)
+            q.x, q.y, q.z, q.w = quaternion_from_matrix(start)
             probe.command.publish(msg)
             try:
                 tcp = probe.tree.lookup('base_link', 'rg2_tcp')

@@ -34,6 +34,7 @@ from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 from trajectory_msgs.msg import JointTrajectoryPoint
 from ur_rg2_sim.parameters import ParameterSpec, declare_parameters
+from ur_rg2_sim.robot_model import ARM_JOINTS
 from ur_rg2_sim.spin import run_node
 from ur_rg2_sim.tf_buffer import (
     FrameLookupError,
@@ -43,7 +44,6 @@ from ur_rg2_sim.tf_buffer import (
 )
 
 from ur_rg2_motion.kinematics import (
-    ARM_JOINTS,
     BASE_LINK,
     ArmKinematics,
     Box,

@@ -27,22 +27,19 @@ import time
 from geometry_msgs.msg import PointStamped, PoseStamped
 import numpy as np
 from rcl_interfaces.srv import SetParameters
-import rclpy
-from rclpy.context import Context
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
-from ur_rg2_motion.kinematics import ArmKinematics, Box, KinematicsError, quaternion_of
+from ur_rg2_motion.kinematics import ArmKinematics, Box, KinematicsError
 from ur_rg2_motion.planning import gripper_down
 from ur_rg2_sim.robot_model import write_robot_urdf
-from ur_rg2_sim.tf_buffer import FrameLookupError, TransformBuffer
+from ur_rg2_sim.tf_buffer import FrameLookupError, TransformBuffer, quaternion_from_matrix
 from ur_rg2_sim.world import PEDESTAL_HEIGHT
 
-from bench.processes import bench_env, node_process
+from bench.processes import bench_env, node_process, spun_node
 from bench.teleop_bench import _keys_terminal
 
 IK_SOLVES = 5000
@@ -188,31 +185,6 @@ class _Probe:
 
 
 @contextmanager
-def _probe(domain_id: int) -> Iterator[_Probe]:
-    context = Context()
-    rclpy.init(context=context, domain_id=domain_id)
-    node = Node('motion_bench', context=context)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(node)
-
-    def spin() -> None:
-        try:
-            executor.spin()
-        except ExternalShutdownException:
-            pass
-
-    spinner = threading.Thread(target=spin, daemon=True)
-    spinner.start()
-    try:
-        yield _Probe(node)
-    finally:
-        context.try_shutdown()
-        spinner.join()
-        node.destroy_node()
-        executor.shutdown()
-
-
-@contextmanager
 def _graph(domain_id: int, camera: bool) -> Iterator[_Probe]:
     sim_parameters = {} if camera else {'camera_rate': '0.0'}
     with node_process('sim', sim_parameters, domain_id, ready='simulating',
@@ -220,8 +192,8 @@ def _graph(domain_id: int, camera: bool) -> Iterator[_Probe]:
             node_process('vision', {}, domain_id, ready='looking for the ball',
                          timeout=START_TIMEOUT_S) if camera else nullcontext(), \
             node_process('motion', {}, domain_id, ready='ready:', timeout=START_TIMEOUT_S), \
-            _probe(domain_id) as probe:
-        yield probe
+            spun_node('motion_bench', domain_id) as node:
+        yield _Probe(node)
 
 
 def pick_trials(count: int, domain_id: int) -> dict:
@@ -282,7 +254,7 @@ def jog_latencies(domain_id: int) -> list[float]:
             msg.header.frame_id = 'base_link'
             p, q = msg.pose.position, msg.pose.orientation
             p.x, p.y, p.z = (float(v) for v in start[:3, 3])
-            q.x, q.y, q.z, q.w = quaternion_of(start)
+            q.x, q.y, q.z, q.w = quaternion_from_matrix(start)
             probe.command.publish(msg)
             try:
                 tcp = probe.tree.lookup('base_link', 'rg2_tcp')

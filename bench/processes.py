@@ -1,4 +1,7 @@
-"""Helpers shared by the benchmarks: node processes on a private domain, their CPU and memory."""
+"""Helpers shared by the benchmarks: node processes on a private domain, their CPU and memory.
+
+Also the benchmark process's own node on that domain, spun in the background.
+"""
 
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
@@ -8,9 +11,14 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 
 import numpy as np
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
 
 CLK_TCK = os.sysconf('SC_CLK_TCK')
 PAGE_SIZE = os.sysconf('SC_PAGE_SIZE')
@@ -72,3 +80,29 @@ def node_process(executable: str, parameters: dict[str, str], domain_id: int,
                 process.wait()
             log.seek(0)
             process.log = log.read().decode(errors='replace')  # for what it says on exit
+
+
+@contextmanager
+def spun_node(name: str, domain_id: int) -> Iterator[Node]:
+    """Yield a node of this process on ``domain_id``, spun on a background thread meanwhile."""
+    context = Context()
+    rclpy.init(context=context, domain_id=domain_id)
+    node = Node(name, context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+
+    def spin() -> None:
+        try:
+            executor.spin()
+        except ExternalShutdownException:
+            pass
+
+    spinner = threading.Thread(target=spin, daemon=True)
+    spinner.start()
+    try:
+        yield node
+    finally:
+        context.try_shutdown()
+        spinner.join()
+        node.destroy_node()
+        executor.shutdown()

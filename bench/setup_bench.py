@@ -49,5 +49,6 @@ def run() -> list[tuple[str, str, str]]:
 
 
 if __name__ == '__main__':
-    for metric, measured, target in run():
-        print(f'{metric}: {measured} (target: {target})')
+    from bench.__main__ import print_table
+
+    print_table(run())

@@ -23,13 +23,10 @@ import tempfile
 import threading
 import time
 
-import rclpy
-from rclpy.context import Context
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
-from bench.processes import bench_env, node_process
+from bench.processes import bench_env, node_process, spun_node
 
 TRIALS = 200  # p99 then rests on the two slowest, not on one outlier
 WARMUP_TRIALS = 5
@@ -122,31 +119,6 @@ def _keys_terminal(env: dict[str, str], log: Path) -> Iterator[int]:
         os.close(slave)
 
 
-@contextmanager
-def _probe(domain_id: int) -> Iterator[_Probe]:
-    context = Context()
-    rclpy.init(context=context, domain_id=domain_id)
-    node = Node('teleop_bench', context=context)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(node)
-
-    def spin() -> None:
-        try:
-            executor.spin()
-        except ExternalShutdownException:
-            pass
-
-    spinner = threading.Thread(target=spin, daemon=True)
-    spinner.start()
-    try:
-        yield _Probe(node)
-    finally:
-        context.try_shutdown()
-        spinner.join()
-        node.destroy_node()
-        executor.shutdown()
-
-
 def _trial(probe: _Probe, master: int, key: bytes) -> tuple[float, float]:
     """Press ``key`` with the arm at rest; return (key→joint_jog, key→moving) in seconds."""
     probe.wait(lambda: probe.still >= STILL_STATES, TRIAL_TIMEOUT_S, 'the arm at rest')
@@ -182,10 +154,12 @@ def run() -> list[tuple[str, str, str]]:
     env = bench_env(domain_id)
     with tempfile.TemporaryDirectory(prefix='teleop-bench-') as tmp, \
             node_process('sim', {'camera_rate': '0.0'}, domain_id, ready='simulating'), \
-            _probe(domain_id) as probe, \
-            _keys_terminal(env, Path(tmp, 'keys.log')) as master:
-        _connect(probe, master)
-        results = [_trial(probe, master, KEYS[i % 2]) for i in range(WARMUP_TRIALS + TRIALS)]
+            spun_node('teleop_bench', domain_id) as node:
+        probe = _Probe(node)
+        with _keys_terminal(env, Path(tmp, 'keys.log')) as master:
+            _connect(probe, master)
+            results = [_trial(probe, master, KEYS[i % 2])
+                       for i in range(WARMUP_TRIALS + TRIALS)]
     jog, move = (list(column) for column in zip(*results[WARMUP_TRIALS:], strict=True))
     # The tail is the scheduler's on a shared 2-core machine; say how busy it was.
     load = f'load {os.getloadavg()[0]:.1f}'
@@ -201,5 +175,6 @@ def run() -> list[tuple[str, str, str]]:
 
 
 if __name__ == '__main__':
-    for metric, measured, target in run():
-        print(f'{metric}: {measured} (target: {target})')
+    from bench.__main__ import print_table
+
+    print_table(run())

@@ -1,12 +1,14 @@
 """Shared fixtures: one rclpy Context per test, on its own DDS domain, spun in the background."""
 
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 import itertools
+import math
 import os
 from pathlib import Path
 import threading
 import time
 
+import pybullet
 import pytest
 
 # Keep every byte of DDS traffic on this host, before rclpy is imported anywhere, with the
@@ -19,6 +21,10 @@ import rclpy  # noqa: E402
 from rclpy.context import Context  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 from ur_rg2_sim.executors import BlockingGroupExecutor  # noqa: E402
+from ur_rg2_sim.world import SimWorld, WorldConfig  # noqa: E402
+
+# The TCP's orientation with the gripper pointing straight down at the floor.
+GRIPPER_DOWN = pybullet.getQuaternionFromEuler([math.pi, 0, 0])
 
 # Fast DDS supports domain ids 0-232; spread concurrent pytest runs by pid.
 _domain_ids = itertools.count((os.getpid() * 37) % 200)
@@ -90,6 +96,34 @@ class RosGraph:
         for node in reversed(self._nodes):
             node.destroy_node()
         self.context.try_shutdown()
+
+
+@pytest.fixture
+def world_config() -> WorldConfig:
+    """Configure the ``world`` fixture: the default world; a test module overrides this."""
+    return WorldConfig()
+
+
+@pytest.fixture
+def world(world_config: WorldConfig) -> Iterator[SimWorld]:
+    """Yield a plain simulated world of ``world_config`` (pybullet, no ROS); close it after."""
+    sim = SimWorld(world_config)
+    try:
+        yield sim
+    finally:
+        sim.close()
+
+
+def simulate(world: SimWorld, seconds: float) -> None:
+    """Step ``world`` through ``seconds`` of simulated time."""
+    for _ in range(round(seconds / world.dt)):
+        world.step()
+
+
+def move_tcp(world: SimWorld, position: Sequence[float], seconds: float = 2.5) -> None:
+    """Drive the arm toward the TCP at ``position``, gripper down, for ``seconds``."""
+    world.set_arm_targets(world.inverse_kinematics(position, GRIPPER_DOWN))
+    simulate(world, seconds)
 
 
 @pytest.fixture

@@ -9,26 +9,25 @@ import xml.etree.ElementTree as ET
 import numpy as np
 import pybullet
 import pytest
-from tf_tree import Tree, angle_between, matrix, ur_forward_kinematics
+from tf_tree import buffer_of, ur_forward_kinematics
+from ur_rg2_motion.kinematics import rotation_angle
 from ur_rg2_sim.camera import Camera, CameraConfig
 from ur_rg2_sim.frames import (
     FrameError,
     camera_transforms,
     load_frame_tree,
     parse_joints,
-    quaternion_from_matrix,
     robot_description,
 )
 from ur_rg2_sim.robot_model import ARM_JOINTS, GRIPPER_JOINTS, ROBOT_MODELS
+from ur_rg2_sim.tf_buffer import pose_matrix, quaternion_from_matrix
 from ur_rg2_sim.world import SimWorld, WorldConfig
 import yaml
 
 
 @pytest.fixture(params=ROBOT_MODELS)
-def world(request):
-    world = SimWorld(WorldConfig(robot_model=request.param))
-    yield world
-    world.close()
+def world_config(request) -> WorldConfig:
+    return WorldConfig(robot_model=request.param)
 
 
 def set_random_pose(world: SimWorld, rng: np.random.Generator) -> dict[str, float]:
@@ -50,14 +49,14 @@ def test_every_link_where_pybullet_has_it(world):
     rng = np.random.default_rng(9)
     for _ in range(5):
         positions = set_random_pose(world, rng)
-        received = Tree(tree.static)
-        received.add(tree.transforms([positions[n] for n in tree.moving_joint_names]))
+        received = buffer_of([*tree.static,
+                              *tree.transforms([positions[n] for n in tree.moving_joint_names])])
         for link in links - {'world'}:
             position, orientation = world.link_pose(link)
-            expected = matrix(position, orientation)
+            expected = pose_matrix(position, orientation)
             pose = received.lookup('world', link)
             assert np.allclose(pose[:3, 3], expected[:3, 3], atol=1e-6), link
-            assert angle_between(pose, expected) < 1e-6, link
+            assert rotation_angle(pose, expected) < 1e-6, link
 
 
 def test_base_to_tool0_is_the_ur_dh_kinematics(world):
@@ -65,13 +64,13 @@ def test_base_to_tool0_is_the_ur_dh_kinematics(world):
     rng = np.random.default_rng(3)
     for _ in range(10):
         positions = set_random_pose(world, rng)
-        received = Tree(tree.static)
-        received.add(tree.transforms([positions[n] for n in tree.moving_joint_names]))
+        received = buffer_of([*tree.static,
+                              *tree.transforms([positions[n] for n in tree.moving_joint_names])])
         expected = ur_forward_kinematics(world.config.robot_model,
                                          [positions[n] for n in ARM_JOINTS])
         pose = received.lookup('base', 'tool0')
         assert np.allclose(pose[:3, 3], expected[:3, 3], atol=1e-6)
-        assert angle_between(pose, expected) < 1e-6
+        assert rotation_angle(pose, expected) < 1e-6
 
 
 def test_world_to_base_link_follows_the_physics_base():
@@ -82,8 +81,8 @@ def test_world_to_base_link_follows_the_physics_base():
         pybullet.resetBasePositionAndOrientation(world.robot, *moved,
                                                  physicsClientId=world.client)
         tree = load_frame_tree(world, world.urdf)
-        pose = Tree(tree.static).lookup('world', 'base_link')
-        assert np.allclose(pose, matrix(*moved), atol=1e-9)
+        pose = buffer_of(tree.static).lookup('world', 'base_link')
+        assert np.allclose(pose, pose_matrix(*moved), atol=1e-9)
     finally:
         world.close()
 
@@ -97,7 +96,7 @@ def test_camera_frames_match_the_renderer(position, look_at):
     world = SimWorld(WorldConfig())
     try:
         camera = Camera(world, CameraConfig(position=position, look_at=look_at))
-        tree = Tree(camera_transforms(position, look_at))
+        tree = buffer_of(camera_transforms(position, look_at))
         optical = tree.lookup('world', 'camera_color_optical_frame')
         point = np.array([0.3, -0.2, 0.4])
         in_optical = np.linalg.inv(optical) @ [*point, 1.0]
@@ -116,7 +115,7 @@ def test_quaternion_from_matrix_round_trips():
     for _ in range(200):
         q = rng.normal(size=4)
         q /= np.linalg.norm(q)
-        back = quaternion_from_matrix(matrix((0, 0, 0), q)[:3, :3])
+        back = quaternion_from_matrix(pose_matrix((0, 0, 0), q)[:3, :3])
         assert np.allclose(back, q * np.sign(q[3]), atol=1e-9)
 
 
@@ -172,8 +171,8 @@ def test_a_urdf_rooted_at_its_base_link_hangs_where_pybullet_has_the_base(tmp_pa
                                   useFixedBase=True, flags=pybullet.URDF_USE_INERTIA_FROM_FILE,
                                   physicsClientId=world.client)
         body = SimpleNamespace(robot=robot, client=world.client)
-        tree = Tree(load_frame_tree(body, urdf).static)
+        tree = buffer_of(load_frame_tree(body, urdf).static)
         assert np.allclose(tree.lookup('world', 'base_link'),
-                           matrix([0.3, 0.1, 0.5], [0, 0, 0.6, 0.8]), atol=1e-6)
+                           pose_matrix([0.3, 0.1, 0.5], [0, 0, 0.6, 0.8]), atol=1e-6)
     finally:
         world.close()

@@ -20,10 +20,10 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
-from ur_rg2_motion.kinematics import quaternion_of, rotation_angle
+from ur_rg2_motion.kinematics import rotation_angle
 from ur_rg2_motion.motion_node import MotionNode
 from ur_rg2_motion.planning import gripper_down
-from ur_rg2_sim.tf_buffer import TransformBuffer, pose_matrix
+from ur_rg2_sim.tf_buffer import TransformBuffer, pose_matrix, quaternion_from_matrix
 
 WARNING = re.compile(r'\[WARN\] \[[\d.]+\] \[ur_rg2_motion\]: (.*)')
 TIMEOUT = 60.0  # s of wall time for a move on a loaded 2-core machine
@@ -103,7 +103,7 @@ class Rig:
         msg.header.frame_id = frame
         p, q = msg.pose.position, msg.pose.orientation
         p.x, p.y, p.z = (float(v) for v in pose[:3, 3])
-        q.x, q.y, q.z, q.w = quaternion if quaternion is not None else quaternion_of(pose)
+        q.x, q.y, q.z, q.w = quaternion if quaternion is not None else quaternion_from_matrix(pose)
         self.command.publish(msg)
 
     def send_jog(self, translation=(0.0, 0.0, 0.0), rotation=(0.0, 0.0, 0.0, 1.0),
@@ -227,7 +227,7 @@ def test_bad_targets_are_rejected_with_one_warning_and_no_motion(rig, capfd, wha
 def test_a_nearly_unit_quaternion_is_normalised_and_executed(rig, capfd):
     warnings = Warnings(capfd)
     target = gripper_down((0.4, -0.1, 0.1), 0.0)
-    q = np.array(quaternion_of(target)) * 1.0005
+    q = np.array(quaternion_from_matrix(target)) * 1.0005
     count = len(warnings())
     rig.send_pose(target, quaternion=tuple(q))
     rig.reach(target)

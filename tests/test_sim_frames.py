@@ -13,9 +13,11 @@ from std_msgs.msg import String
 from test_sim_node import FAST, Probe, image_array, latest_frame, run_sim, stamp_ns
 from test_sim_reach import nearest
 from tf2_msgs.msg import TFMessage
-from tf_tree import Tree, angle_between, ur_forward_kinematics
+from tf_tree import ur_forward_kinematics
+from ur_rg2_motion.kinematics import rotation_angle
 from ur_rg2_sim.frame_publisher import LATCHED_QOS, TF_QOS
 from ur_rg2_sim.robot_model import ARM_JOINTS
+from ur_rg2_sim.tf_buffer import TransformBuffer
 from ur_rg2_sim.world import SimWorld, WorldConfig
 
 MM = 1e-3
@@ -34,12 +36,12 @@ class FrameProbe(Probe):
                 ('robot_description', String, LATCHED_QOS), ('ball/true_pose', PoseStamped, 100)):
             self.node.create_subscription(kind, topic, self._recorder(topic), qos)
 
-    def static_tree(self, timeout: float = 30.0) -> Tree:
-        tree = Tree()
+    def static_tree(self, timeout: float = 30.0) -> TransformBuffer:
+        tree = TransformBuffer()
         tree.add_message(self.latest('/tf_static', timeout))
         return tree
 
-    def tree_at(self, joint_states) -> Tree:
+    def tree_at(self, joint_states) -> TransformBuffer:
         """Return /tf_static plus the /tf message stamped like ``joint_states``."""
         stamp = stamp_ns(joint_states)
         tf = wait_for(lambda: [m for m in self.messages('/tf')
@@ -105,7 +107,7 @@ def assert_dh_kinematics(probe: FrameProbe, model: str, configurations: int = 3)
         expected = ur_forward_kinematics(model, [positions[name] for name in ARM_JOINTS])
         pose = probe.tree_at(joint_states).lookup('base', 'tool0')
         assert np.linalg.norm(pose[:3, 3] - expected[:3, 3]) < 1 * MM, (targets, pose, expected)
-        assert angle_between(pose, expected) < 0.1 * DEG, (targets, pose, expected)
+        assert rotation_angle(pose, expected) < 0.1 * DEG, (targets, pose, expected)
 
 
 def test_tf_base_to_tool0_is_ur5_dh_kinematics(ros_graph):
@@ -128,10 +130,10 @@ def test_across_processes_ur3_tree_and_robot_description(ros_graph):
         for uri in meshes:
             assert urlparse(uri).scheme == 'file' and Path(urlparse(uri).path).is_file(), uri
         tree = probe.tree_at(probe.latest('joint_states'))
-        frames = set(tree.edges) | {'world'}
+        frames = tree.frames()
         assert frames == links | {'camera_link', 'camera_color_optical_frame'}
         for frame in frames:
-            assert tree.from_root(frame)[0] == 'world', f'{frame} is not reachable from world'
+            tree.lookup('world', frame)  # raises if the frame is not connected to world
         assert_dh_kinematics(probe, 'ur3', configurations=2)
     finally:
         process.send_signal(signal.SIGINT)
@@ -208,10 +210,11 @@ def test_frame_prefix_applies_to_every_frame(ros_graph):
     probe = FrameProbe(ros_graph)
     tree = probe.static_tree()
     tree.add_message(probe.latest('/tf'))
-    assert 'r1/tool0' in tree.edges and 'r1/camera_color_optical_frame' in tree.edges
-    for child, (parent, _) in tree.edges.items():
-        assert child.startswith('r1/') and parent.startswith('r1/'), (parent, child)
-        assert tree.from_root(child)[0] == 'r1/world'
+    frames = tree.frames()
+    assert 'r1/tool0' in frames and 'r1/camera_color_optical_frame' in frames
+    for frame in frames:
+        assert frame.startswith('r1/'), frame
+        tree.lookup('r1/world', frame)  # raises if the frame is not connected to r1/world
     color, depth, info, depth_info = latest_frame(probe)
     for msg in (color, depth, info, depth_info):
         assert msg.header.frame_id == 'r1/camera_color_optical_frame'

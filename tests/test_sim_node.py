@@ -10,9 +10,8 @@ import sys
 import threading
 import time
 
-from conftest import start_sim, wait_for
+from conftest import GRIPPER_DOWN, start_sim, wait_for
 import numpy as np
-import pybullet
 import pytest
 from rcl_interfaces.msg import Log
 from rcl_interfaces.msg import Parameter as ParameterMsg
@@ -27,7 +26,6 @@ from ur_rg2_sim.sim_node import IMAGE_QOS
 from ur_rg2_sim.world import SimWorld, WorldConfig
 
 SIM_BIN = os.path.join(os.path.dirname(sys.executable), 'sim')
-GRIPPER_DOWN = pybullet.getQuaternionFromEuler([math.pi, 0, 0])
 TOLERANCE = math.radians(0.1)
 # Fast enough to keep tests short, slow enough that subscribers see every state.
 FAST = 3.0

@@ -7,13 +7,13 @@ region in front of the robot; an arm driven into the floor or the pedestal stops
 
 import math
 
+from conftest import GRIPPER_DOWN, move_tcp, simulate
 import numpy as np
 import pybullet
 import pytest
 from ur_rg2_sim.robot_model import ARM_JOINTS, TCP_LINK
 from ur_rg2_sim.world import DEFAULT_BALL_POSITION, PEDESTAL_HEIGHT, SimWorld, WorldConfig
 
-GRIPPER_DOWN = pybullet.getQuaternionFromEuler([math.pi, 0, 0])
 BALL_RADIUS = 0.03
 HOME = dict.fromkeys(ARM_JOINTS, 0.0)
 # Clearance of every arm and gripper link at home, m (the open RG2's lower finger is nearest).
@@ -27,22 +27,8 @@ ANGLES_DEG = (-90, -45, 0, 45, 90)
 
 
 @pytest.fixture(params=['ur5', 'ur3'])
-def world(request):
-    sim = SimWorld(WorldConfig(robot_model=request.param, ball_radius=BALL_RADIUS))
-    try:
-        yield sim
-    finally:
-        sim.close()
-
-
-def run(world: SimWorld, seconds: float) -> None:
-    for _ in range(round(seconds / world.dt)):
-        world.step()
-
-
-def move_tcp(world: SimWorld, position, seconds: float = 2.0) -> None:
-    world.set_arm_targets(world.inverse_kinematics(position, GRIPPER_DOWN))
-    run(world, seconds)
+def world_config(request) -> WorldConfig:
+    return WorldConfig(robot_model=request.param, ball_radius=BALL_RADIUS)
 
 
 def descend(world: SimWorld, start, end, steps: int = 15) -> None:
@@ -53,7 +39,7 @@ def descend(world: SimWorld, start, end, steps: int = 15) -> None:
     """
     for fraction in np.linspace(0.0, 1.0, steps + 1)[1:]:
         move_tcp(world, np.add(start, fraction * np.subtract(end, start)), seconds=0.1)
-    run(world, 1.0)
+    simulate(world, 1.0)
 
 
 def nearest(world: SimWorld, body: int, skip_links=()) -> float:
@@ -80,7 +66,7 @@ def test_base_stands_on_the_pedestal_and_home_clears_it_and_the_floor(world):
     # The base is bolted onto the pedestal; every link above it stays clear.
     on_plate = {-1, world.link_index('base_link'), world.link_index('base')}
     assert nearest(world, world.pedestal, on_plate) > 0.02
-    run(world, 1.0)
+    simulate(world, 1.0)
     assert deepest_contact(world) == 0.0
     assert world.joint_states().positions[:6] == pytest.approx([0.0] * 6, abs=0.01)
 
@@ -105,7 +91,7 @@ def test_tcp_reaches_the_ball_on_the_floor_with_the_gripper_down(world):
     missed = {}
     for x, y in points:
         world.set_arm_positions(HOME)
-        move_tcp(world, (x, y, BALL_RADIUS + 0.15))
+        move_tcp(world, (x, y, BALL_RADIUS + 0.15), seconds=2.0)
         descend(world, (x, y, BALL_RADIUS + 0.15), (x, y, BALL_RADIUS))
         error = np.linalg.norm(np.subtract(world.link_pose(TCP_LINK)[0], (x, y, BALL_RADIUS)))
         down = world.link_pose(TCP_LINK)[1]
@@ -119,12 +105,12 @@ def test_tcp_reaches_the_ball_on_the_floor_with_the_gripper_down(world):
 def test_default_ball_is_grasped_from_the_pedestal(world):
     ball = np.array(world.body_position(world.ball))
     assert ball == pytest.approx(DEFAULT_BALL_POSITION, abs=1e-3)
-    move_tcp(world, ball + [0, 0, 0.15])
-    move_tcp(world, ball)
+    move_tcp(world, ball + [0, 0, 0.15], seconds=2.0)
+    move_tcp(world, ball, seconds=2.0)
     world.close_gripper()
-    run(world, 1.5)
+    simulate(world, 1.5)
     assert world.gripper_holds_object()
-    move_tcp(world, ball + [0, 0, 0.2])
+    move_tcp(world, ball + [0, 0, 0.2], seconds=2.0)
     assert world.body_position(world.ball)[2] > ball[2] + 0.15
 
 
@@ -151,7 +137,7 @@ def test_arm_driven_into_floor_or_pedestal_stops_on_it_and_backs_out(world, pose
     stopped_at = state.positions[ARM_JOINTS.index(name)]
     assert stopped_at < start[name] + delta - 0.5, 'stopped well short of the target'
     world.set_arm_targets(start)
-    run(world, 3.0)
+    simulate(world, 3.0)
     assert world.joint_states().positions[:6] == pytest.approx(
         [start[j] for j in ARM_JOINTS], abs=0.01)
     assert deepest_contact(world) == 0.0

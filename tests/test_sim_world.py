@@ -2,35 +2,14 @@
 
 import math
 
+from conftest import move_tcp, simulate
 import numpy as np
-import pybullet
 import pytest
 from ur_rg2_sim.camera import Camera, CameraConfig
 from ur_rg2_sim.commands import CommandError, joint_targets
 from ur_rg2_sim.robot_model import ARM_JOINTS, GRIPPER_JOINTS, RG2_MAX_OPENING
 from ur_rg2_sim.simulation import Schedule, SimulationLoop
 from ur_rg2_sim.world import SimWorld, WorldConfig
-
-GRIPPER_DOWN = pybullet.getQuaternionFromEuler([math.pi, 0, 0])
-
-
-@pytest.fixture
-def world():
-    sim = SimWorld(WorldConfig())
-    try:
-        yield sim
-    finally:
-        sim.close()
-
-
-def run(world: SimWorld, seconds: float) -> None:
-    for _ in range(round(seconds / world.dt)):
-        world.step()
-
-
-def move_tcp(world: SimWorld, position, seconds: float = 2.5) -> None:
-    world.set_arm_targets(world.inverse_kinematics(position, GRIPPER_DOWN))
-    run(world, seconds)
 
 
 @pytest.mark.parametrize('model', ['ur5', 'ur3'])
@@ -49,11 +28,11 @@ def test_models_load_with_real_kinematics(model):
 
 def test_gripper_opens_to_the_datasheet_stroke(world):
     world.close_gripper()
-    run(world, 2.5)
+    simulate(world, 2.5)
     assert world.gripper_opening() == pytest.approx(0.0, abs=1e-3)
     assert not world.gripper_holds_object()
     world.open_gripper()
-    run(world, 2.5)
+    simulate(world, 2.5)
     assert world.gripper_opening() == pytest.approx(RG2_MAX_OPENING, abs=1e-3)
 
 
@@ -62,7 +41,7 @@ def test_grasped_ball_is_lifted_and_held_at_full_speed(world):
     move_tcp(world, ball + [0, 0, 0.15])
     move_tcp(world, ball)
     world.close_gripper()
-    run(world, 1.5)
+    simulate(world, 1.5)
     assert world.gripper_holds_object()
     assert world.gripper_opening() == pytest.approx(2 * world.config.ball_radius, abs=0.005)
 

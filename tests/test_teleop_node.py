@@ -11,8 +11,8 @@ from rclpy.exceptions import InvalidParameterValueException
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
+from ur_rg2_sim.robot_model import ARM_JOINTS
 from ur_rg2_teleop.display import Console
-from ur_rg2_teleop.keymap import JOINT_NAMES
 from ur_rg2_teleop.keys_node import KeysNode
 
 
@@ -64,7 +64,7 @@ def test_every_jog_key_moves_its_joint(ros_graph):
     keys = Keys(ros_graph)
     keys.press('qwaszxerdfcv')
     wait_for(lambda: len(keys.jogs) == 12, 10.0, 'twelve joint_jog messages')
-    expected = [(name, sign) for name in JOINT_NAMES for sign in (1, -1)]
+    expected = [(name, sign) for name in ARM_JOINTS for sign in (1, -1)]
     assert [(m.name[0], math.copysign(1, m.position[0])) for m in keys.jogs] == expected
 
 
@@ -147,7 +147,7 @@ def test_angles_are_shown_once_when_the_move_is_over(ros_graph):
 
     def publish():
         while not stop.wait(0.01):
-            msg = JointState(name=[*JOINT_NAMES, 'rg2_finger_joint'])
+            msg = JointState(name=[*ARM_JOINTS, 'rg2_finger_joint'])
             msg.position = [state['pan'], -1.0, 0.5, 0.0, 0.0, 0.0, 0.02]
             msg.velocity = [state['speed'], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
             publisher.publish(msg)

@@ -22,15 +22,8 @@ import math
 import xml.etree.ElementTree as ET
 
 import numpy as np
+from ur_rg2_sim.robot_model import ARM_JOINTS
 
-ARM_JOINTS = (
-    'shoulder_pan_joint',
-    'shoulder_lift_joint',
-    'elbow_joint',
-    'wrist_1_joint',
-    'wrist_2_joint',
-    'wrist_3_joint',
-)
 BASE_LINK = 'base_link'
 DH_BASE = 'base'
 FLANGE = 'tool0'
@@ -170,28 +163,6 @@ def rotation_angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     sine = np.linalg.norm(np.stack([r[..., 2, 1] - r[..., 1, 2], r[..., 0, 2] - r[..., 2, 0],
                                     r[..., 1, 0] - r[..., 0, 1]], axis=-1), axis=-1) / 2
     return np.arctan2(sine, (np.trace(r, axis1=-2, axis2=-1) - 1) / 2)
-
-
-def quaternion_of(matrix: np.ndarray) -> tuple[float, float, float, float]:
-    """Return the xyzw unit quaternion (w >= 0) of a rotation or pose matrix."""
-    m = np.asarray(matrix, dtype=float)[:3, :3]
-    trace = m[0, 0] + m[1, 1] + m[2, 2]
-    # Shepperd's method: divide by the largest of the four candidates, for accuracy.
-    i = int(np.argmax([trace, m[0, 0], m[1, 1], m[2, 2]]))
-    if i == 0:
-        s = 2 * math.sqrt(1 + trace)
-        q = ((m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, s / 4)
-    elif i == 1:
-        s = 2 * math.sqrt(1 + m[0, 0] - m[1, 1] - m[2, 2])
-        q = (s / 4, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s, (m[2, 1] - m[1, 2]) / s)
-    elif i == 2:
-        s = 2 * math.sqrt(1 + m[1, 1] - m[0, 0] - m[2, 2])
-        q = ((m[0, 1] + m[1, 0]) / s, s / 4, (m[1, 2] + m[2, 1]) / s, (m[0, 2] - m[2, 0]) / s)
-    else:
-        s = 2 * math.sqrt(1 + m[2, 2] - m[0, 0] - m[1, 1])
-        q = ((m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, s / 4, (m[1, 0] - m[0, 1]) / s)
-    sign = -1.0 if q[3] < 0 else 1.0
-    return tuple(float(sign * c) for c in q)
 
 
 @dataclass(frozen=True)

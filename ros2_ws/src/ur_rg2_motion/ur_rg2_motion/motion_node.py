@@ -18,11 +18,8 @@ from builtin_interfaces.msg import Duration
 from control_msgs.action import FollowJointTrajectory, GripperCommand
 from geometry_msgs.msg import PointStamped, PoseStamped, TransformStamped
 import numpy as np
-import rclpy
 from rclpy.action import ActionClient
 from rclpy.callback_groups import ReentrantCallbackGroup
-from rclpy.executors import ExternalShutdownException
-from rclpy.logging import get_logger
 from rclpy.node import Node
 from rclpy.qos import (
     DurabilityPolicy,
@@ -36,8 +33,9 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 from trajectory_msgs.msg import JointTrajectoryPoint
-from ur_rg2_sim.executors import BlockingGroupExecutor
 from ur_rg2_sim.parameters import ParameterSpec, declare_parameters
+from ur_rg2_sim.robot_model import ARM_JOINTS
+from ur_rg2_sim.spin import run_node
 from ur_rg2_sim.tf_buffer import (
     FrameLookupError,
     TransformBuffer,
@@ -46,7 +44,6 @@ from ur_rg2_sim.tf_buffer import (
 )
 
 from ur_rg2_motion.kinematics import (
-    ARM_JOINTS,
     BASE_LINK,
     ArmKinematics,
     Box,
@@ -549,27 +546,7 @@ def _trajectory_goal(trajectory: Trajectory) -> FollowJointTrajectory.Goal:
 
 def main(args: list[str] | None = None) -> int:
     """Run the node until Ctrl-C / SIGTERM."""
-    rclpy.init(args=args)
-    executor = BlockingGroupExecutor()
-    node = None
-    try:
-        node = MotionNode()
-        executor.add_blocking_group(node.blocking_group)
-        executor.add_node(node)
-        while rclpy.ok():
-            executor.spin_once(timeout_sec=0.25)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception as error:
-        if rclpy.ok():
-            get_logger(NODE_NAME).error(f'stopped: {error}')
-            raise
-    finally:
-        executor.shutdown()
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run_node(MotionNode, args, NODE_NAME)
 
 
 if __name__ == '__main__':

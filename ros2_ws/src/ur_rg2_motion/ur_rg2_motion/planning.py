@@ -13,12 +13,11 @@ from dataclasses import dataclass
 import math
 
 import numpy as np
-from ur_rg2_sim.tf_buffer import pose_matrix
+from ur_rg2_sim.tf_buffer import pose_matrix, quaternion_from_matrix
 
 from ur_rg2_motion.kinematics import (
     ArmKinematics,
     KinematicsError,
-    quaternion_of,
     rotation_angle,
 )
 
@@ -48,8 +47,8 @@ class Trajectory:
 
 def interpolate(start: np.ndarray, end: np.ndarray, fractions: Sequence[float]) -> np.ndarray:
     """Return poses (N, 4, 4) along the straight line and the one-axis turn from start to end."""
-    q0 = np.array(quaternion_of(start))
-    q1 = np.array(quaternion_of(end))
+    q0 = np.array(quaternion_from_matrix(start))
+    q1 = np.array(quaternion_from_matrix(end))
     dot = float(q0 @ q1)
     if dot < 0:  # the shorter way round
         q1, dot = -q1, -dot

@@ -25,6 +25,7 @@ import numpy as np
 import pybullet
 
 from ur_rg2_sim.camera_pose import optical_rotation
+from ur_rg2_sim.tf_buffer import quaternion_from_matrix
 
 Vector = tuple[float, float, float]
 Quaternion = tuple[float, float, float, float]  # x, y, z, w
@@ -210,29 +211,6 @@ def rotate(q: Sequence[float], v: Sequence[float]) -> Vector:
     x, y, z, _ = quaternion_multiply(quaternion_multiply(q, (*v, 0.0)),
                                      (-q[0], -q[1], -q[2], q[3]))
     return (x, y, z)
-
-
-def quaternion_from_matrix(matrix: np.ndarray) -> Quaternion:
-    """Return the xyzw quaternion of a 3x3 rotation matrix (w >= 0)."""
-    m = np.asarray(matrix, dtype=float)
-    trace = m[0, 0] + m[1, 1] + m[2, 2]
-    # Shepperd's method: divide by the largest of the four candidates, for accuracy.
-    candidates = [trace, m[0, 0], m[1, 1], m[2, 2]]
-    i = int(np.argmax(candidates))
-    if i == 0:
-        s = 2 * math.sqrt(1 + trace)
-        q = ((m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, s / 4)
-    elif i == 1:
-        s = 2 * math.sqrt(1 + m[0, 0] - m[1, 1] - m[2, 2])
-        q = (s / 4, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s, (m[2, 1] - m[1, 2]) / s)
-    elif i == 2:
-        s = 2 * math.sqrt(1 + m[1, 1] - m[0, 0] - m[2, 2])
-        q = ((m[0, 1] + m[1, 0]) / s, s / 4, (m[1, 2] + m[2, 1]) / s, (m[0, 2] - m[2, 0]) / s)
-    else:
-        s = 2 * math.sqrt(1 + m[2, 2] - m[0, 0] - m[1, 1])
-        q = ((m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, s / 4, (m[1, 0] - m[0, 1]) / s)
-    sign = -1.0 if q[3] < 0 else 1.0
-    return tuple(float(sign * v) for v in q)
 
 
 def _floats(element, attribute: str, count: int,

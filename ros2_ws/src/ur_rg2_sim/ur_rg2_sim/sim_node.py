@@ -14,7 +14,6 @@ from rcl_interfaces.msg import SetParametersResult
 import rclpy
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -26,13 +25,13 @@ from std_srvs.srv import Trigger
 from ur_rg2_sim.camera import Camera, CameraConfig, Frame
 from ur_rg2_sim.commands import CommandError, finite_vector, in_range, joint_targets
 from ur_rg2_sim.controllers import Controllers
-from ur_rg2_sim.executors import BlockingGroupExecutor
 from ur_rg2_sim.frame_publisher import FramePublisher
 from ur_rg2_sim.frames import OPTICAL_FRAME, load_frame_tree, robot_description
 from ur_rg2_sim.parameters import declare_parameters
 from ur_rg2_sim.robot_model import ARM_JOINTS, ROBOT_MODELS, RobotModelError
 from ur_rg2_sim.serialized import SerializedMessage
 from ur_rg2_sim.simulation import NS, Schedule, SimulationLoop
+from ur_rg2_sim.spin import run_node
 from ur_rg2_sim.world import DEFAULT_BALL_POSITION, JointStateSample, SimWorld, WorldConfig
 
 # Gripper and reset services give up after this much simulation time (the contract's 5 s).
@@ -379,37 +378,19 @@ def _camera_info(camera: Camera, header) -> CameraInfo:
 
 def main(args: Optional[list[str]] = None) -> int:
     """Run the simulator node until Ctrl-C or SIGTERM."""
-    rclpy.init(args=args)
-    executor = BlockingGroupExecutor()
-    node = None
-    try:
-        node = SimNode()
-        executor.add_blocking_group(node.blocking_group)
-        executor.add_node(node)
-        while rclpy.ok():
-            if node.simulation_error is not None:
-                node.get_logger().fatal(f'simulation stopped: {node.simulation_error!r}')
-                return 1
-            executor.spin_once(timeout_sec=0.2)
-        return 0
-    except (CommandError, RobotModelError, ParameterException) as error:
-        _logger().fatal(f'invalid parameter: {error}')
-        return 2
-    except (KeyboardInterrupt, ExternalShutdownException):
-        return 0
-    except Exception:
-        if rclpy.ok():
-            raise
-        return 0  # a signal arrived during start-up and shut the context down under us
-    finally:
-        executor.shutdown()
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    return run_node(SimNode, args, 'ur_rg2_sim',
+                    startup_errors=(CommandError, RobotModelError, ParameterException),
+                    on_startup_error=_invalid_parameter, failure=_simulation_failure)
 
 
-def _logger():
-    return rclpy.logging.get_logger('ur_rg2_sim')
+def _invalid_parameter(error: Exception) -> int:
+    rclpy.logging.get_logger('ur_rg2_sim').fatal(f'invalid parameter: {error}')
+    return 2
+
+
+def _simulation_failure(node: SimNode) -> Optional[str]:
+    error = node.simulation_error
+    return None if error is None else f'simulation stopped: {error!r}'
 
 
 if __name__ == '__main__':

@@ -6,10 +6,12 @@ between (``base_link``, the camera frames, ``world``, ``rg2_tcp``) are fixed rel
 other or move with the arm, so no interpolation in time is done: a lookup uses the latest
 transforms. Plain Python, no ROS imports; messages are read by their fields only.
 
-Used by the motion node and the viewer, so it lives in the package every node depends on.
+Used by the motion node and the viewer, so it lives in the package every node depends on; so do
+the conversions between xyzw quaternions and matrices (the sim's frames and motion use them).
 """
 
 from collections.abc import Iterable, Sequence
+import math
 import threading
 
 import numpy as np
@@ -26,6 +28,29 @@ def pose_matrix(position: Sequence[float], quaternion: Sequence[float]) -> np.nd
     ]
     m[:3, 3] = position
     return m
+
+
+def quaternion_from_matrix(matrix: np.ndarray) -> tuple[float, float, float, float]:
+    """Return the xyzw unit quaternion (w >= 0) of a rotation or pose matrix."""
+    m = np.asarray(matrix, dtype=float)[:3, :3]
+    trace = m[0, 0] + m[1, 1] + m[2, 2]
+    # Shepperd's method: divide by the largest of the four candidates, for accuracy.
+    candidates = [trace, m[0, 0], m[1, 1], m[2, 2]]
+    i = int(np.argmax(candidates))
+    if i == 0:
+        s = 2 * math.sqrt(1 + trace)
+        q = ((m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, s / 4)
+    elif i == 1:
+        s = 2 * math.sqrt(1 + m[0, 0] - m[1, 1] - m[2, 2])
+        q = (s / 4, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s, (m[2, 1] - m[1, 2]) / s)
+    elif i == 2:
+        s = 2 * math.sqrt(1 + m[1, 1] - m[0, 0] - m[2, 2])
+        q = ((m[0, 1] + m[1, 0]) / s, s / 4, (m[1, 2] + m[2, 1]) / s, (m[0, 2] - m[2, 0]) / s)
+    else:
+        s = 2 * math.sqrt(1 + m[2, 2] - m[0, 0] - m[1, 1])
+        q = ((m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, s / 4, (m[1, 0] - m[0, 1]) / s)
+    sign = -1.0 if q[3] < 0 else 1.0
+    return tuple(float(sign * v) for v in q)
 
 
 class FrameLookupError(LookupError):

@@ -6,7 +6,7 @@ import sys
 import threading
 from typing import TextIO
 
-from ur_rg2_teleop.keymap import JOINT_NAMES
+from ur_rg2_sim.robot_model import ARM_JOINTS
 
 SHORT_NAMES = ('pan', 'lift', 'elbow', 'wrist1', 'wrist2', 'wrist3')
 
@@ -26,12 +26,12 @@ class Console:
 
 
 def arm_values(names: Sequence[str], values: Sequence[float]) -> list[float] | None:
-    """Return ``values`` of the six arm joints in JOINT_NAMES order, None if any is missing."""
+    """Return ``values`` of the six arm joints in ARM_JOINTS order, None if any is missing."""
     if len(values) != len(names):
         return None
     by_name = dict(zip(names, values, strict=True))
     try:
-        return [by_name[name] for name in JOINT_NAMES]
+        return [by_name[name] for name in ARM_JOINTS]
     except KeyError:
         return None
 

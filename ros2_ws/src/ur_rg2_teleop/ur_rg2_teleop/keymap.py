@@ -5,14 +5,7 @@ import enum
 import math
 from typing import Union
 
-JOINT_NAMES = (
-    'shoulder_pan_joint',
-    'shoulder_lift_joint',
-    'elbow_joint',
-    'wrist_1_joint',
-    'wrist_2_joint',
-    'wrist_3_joint',
-)
+from ur_rg2_sim.robot_model import ARM_JOINTS
 
 MIN_STEP_DEG = 0.5
 MAX_STEP_DEG = 45.0
@@ -30,7 +23,7 @@ CTRL_C = '\x03'
 
 @dataclass(frozen=True)
 class Jog:
-    """Move arm joint ``joint`` (index into JOINT_NAMES) by one step in ``direction`` (+1/-1)."""
+    """Move arm joint ``joint`` (index into ARM_JOINTS) by one step in ``direction`` (+1/-1)."""
 
     joint: int
     direction: int
@@ -62,7 +55,7 @@ class Mode(enum.Enum):
 
 Action = Union[Jog, CallService, Command]
 
-# One pair per joint, in JOINT_NAMES order: first key +, second key -.
+# One pair per joint, in ARM_JOINTS order: first key +, second key -.
 _JOG_KEYS = ('qw', 'as', 'zx', 'er', 'df', 'cv')
 
 BINDINGS: dict[str, Action] = {
@@ -171,7 +164,7 @@ def help_text(step_deg: float, mode: Mode = Mode.JOINT, step_mm: float = 10.0) -
                 for joint, (plus, minus) in enumerate(_JOG_KEYS)]
         step = f'larger / smaller TCP step (now {step_mm:g} mm; turns {step_deg:g} deg)'
     else:
-        rows = [(f'{plus} / {minus}', f'{JOINT_NAMES[joint]} + / -')
+        rows = [(f'{plus} / {minus}', f'{ARM_JOINTS[joint]} + / -')
                 for joint, (plus, minus) in enumerate(_JOG_KEYS)]
         step = f'larger / smaller step (now {step_deg:g} deg)'
     rows += [

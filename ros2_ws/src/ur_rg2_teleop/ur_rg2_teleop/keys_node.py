@@ -20,10 +20,10 @@ from rclpy.task import Future
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 from ur_rg2_sim.parameters import ParameterSpec, declare_parameters
+from ur_rg2_sim.robot_model import ARM_JOINTS
 
 from ur_rg2_teleop.display import Console, SettleWatcher, arm_values, format_angles
 from ur_rg2_teleop.keymap import (
-    JOINT_NAMES,
     MAX_STEP_DEG,
     MAX_STEP_MM,
     MIN_STEP_DEG,
@@ -130,7 +130,7 @@ class KeysNode(Node):
     def _jog(self, jog: Jog) -> None:
         message = JointState()
         message.header.stamp = self.get_clock().now().to_msg()
-        message.name = [JOINT_NAMES[jog.joint]]
+        message.name = [ARM_JOINTS[jog.joint]]
         message.position = [jog.direction * math.radians(self.step_deg)]
         self._jog_publisher.publish(message)
         with self._lock:

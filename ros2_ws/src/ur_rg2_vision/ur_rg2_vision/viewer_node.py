@@ -30,10 +30,10 @@ from std_msgs.msg import String
 from tf2_msgs.msg import TFMessage
 from ur_rg2_sim.camera_pose import optical_rotation
 from ur_rg2_sim.parameters import ParameterSpec, declare_parameters
+from ur_rg2_sim.spin import run_node
 from ur_rg2_sim.tf_buffer import FrameLookupError, TransformBuffer, transform_point
 
 from ur_rg2_vision.ros_image import image_to_rgb
-from ur_rg2_vision.spin import run_node
 from ur_rg2_vision.viewer_web import FrameHub, ViewerServer, ball_summary, joint_summary
 
 NODE_NAME = 'ur_rg2_viewer'

@@ -31,6 +31,7 @@ from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 from ur_rg2_sim.parameters import ParameterSpec, declare_parameters
+from ur_rg2_sim.spin import run_node
 
 from ur_rg2_vision.detector import (
     DEFAULT_MIN_RADIUS_PX,
@@ -42,7 +43,6 @@ from ur_rg2_vision.detector import (
 from ur_rg2_vision.frame_store import save_frame
 from ur_rg2_vision.localize import BallPosition, locate_first
 from ur_rg2_vision.ros_image import camera_matrix, image_to_depth, image_to_rgb, rgb_to_image
-from ur_rg2_vision.spin import run_node
 
 NODE_NAME = 'ur_rg2_vision'
 

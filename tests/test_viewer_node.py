@@ -12,8 +12,9 @@ from geometry_msgs.msg import PointStamped
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image, JointState
-from std_msgs.msg import Header
+from std_msgs.msg import Bool, Header
 from ur_rg2_vision.ros_image import rgb_to_image
 from ur_rg2_vision.viewer_node import ViewerNode
 
@@ -80,6 +81,16 @@ def test_viewer_serves_what_the_topics_say(ros_graph):
     assert wait_for(ball_shown, 10, 'the ball in /state') == {
         'frame_id': 'camera_color_optical_frame', 'x': 0.1, 'y': 0.2, 'z': 1.5, 'world': None,
         'base_link': None, 'via': None}
+
+    # The policy node's latched state: shown as it comes.
+    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    driving = fake.create_publisher(Bool, 'policy/driving', latched)
+    assert 'policy_driving' not in state(viewer)
+    driving.publish(Bool(data=True))
+    wait_for(lambda: state(viewer).get('policy_driving') is True, 10, 'policy driving')
+    driving.publish(Bool(data=False))
+    wait_for(lambda: state(viewer).get('policy_driving') is False, 10, 'policy idle')
 
 
 def test_the_ball_is_shown_in_world_coordinates_from_the_sims_camera_pose(ros_graph):

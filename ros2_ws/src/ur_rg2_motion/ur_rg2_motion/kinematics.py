@@ -268,19 +268,22 @@ class ArmKinematics:
         fixed = [target[:3, 3], target[:3, 3] + self.finger_length * target[:3, 2],
                  flange[:3, 3] - self.dh.d6 * flange[:3, 2]]
         fixed_failure = self._obstacle_failure([p.tolist() for p in fixed])
-        best, best_distance, failures = None, math.inf, set()
+        candidates, failures = [], set()
         for branch in branches:
             q = _within_limits(branch, current, self._limits)
             if q is None:
                 failures.add('joint_limits')
-                continue
+            else:
+                candidates.append((sum((a - b) ** 2 for a, b in zip(q, current)), q))
+        # Nearest first: the obstacle checks, the costly part, usually run for one branch only
+        # (the learning environments solve once per step).
+        best = None
+        for _, q in sorted(candidates):
             failure = fixed_failure or self._obstacle_failure(self._arm_points(q))
-            if failure:
-                failures.add(failure)
-                continue
-            distance = sum((a - b) ** 2 for a, b in zip(q, current))
-            if distance < best_distance:
-                best, best_distance = q, distance
+            if not failure:
+                best = q
+                break
+            failures.add(failure)
         if best is None:
             reason = next(r for r in ('pedestal', 'floor', 'joint_limits') if r in failures)
             raise KinematicsError(reason, {
@@ -341,7 +344,11 @@ def check_pose(pose: np.ndarray) -> None:
     if pose.shape != (4, 4) or not np.isfinite(pose).all():
         raise KinematicsError('invalid', 'the target pose is not finite')
     r = pose[:3, :3]
-    if np.abs(r.T @ r - np.eye(3)).max() > 1e-6 or np.linalg.det(r) < 0:
+    # The determinant of an orthonormal matrix is the triple product of its columns (scalar
+    # arithmetic: np.linalg.det costs more than the rest of the check).
+    (a, b, c), (d, e, f), (g, h, i) = r.tolist()
+    determinant = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
+    if np.abs(r.T @ r - np.eye(3)).max() > 1e-6 or determinant < 0:
         raise KinematicsError('invalid', 'the target orientation is not a rotation')
 
 

@@ -120,9 +120,7 @@ class SimWorld:
         self._configure_contacts()
         self.arm_targets = dict.fromkeys(ARM_JOINTS, 0.0)
         self.set_arm_positions(dict(zip(ARM_JOINTS, config.home_position)))
-        for name in GRIPPER_JOINTS:  # the RG2 starts fully open
-            self._p.resetJointState(self.robot, self._joint_index[name], RG2_MAX_OPENING / 2)
-        self.command_gripper(RG2_MAX_OPENING)
+        self.reset_gripper()  # the RG2 starts fully open
         self.ball = self._create_ball()
         self.extra_bodies: list[int] = []
 
@@ -224,6 +222,13 @@ class SimWorld:
 
     # -- gripper ------------------------------------------------------------------------------
 
+    def reset_gripper(self) -> None:
+        """Teleport the fingers fully open, at rest, and hold them there."""
+        for name in GRIPPER_JOINTS:
+            self._p.resetJointState(self.robot, self._joint_index[name], RG2_MAX_OPENING / 2,
+                                    0.0)
+        self.command_gripper(RG2_MAX_OPENING)
+
     def open_gripper(self) -> None:
         """Drive the fingers to the full 110 mm opening."""
         self.command_gripper(RG2_MAX_OPENING)
@@ -304,6 +309,11 @@ class SimWorld:
         """Move the ball to ``position`` at rest."""
         self._p.resetBasePositionAndOrientation(self.ball, list(position), [0, 0, 0, 1])
         self._p.resetBaseVelocity(self.ball, [0, 0, 0], [0, 0, 0])
+
+    def set_robot_collisions(self, body: int, enabled: bool) -> None:
+        """Let the arm and gripper touch ``body`` (e.g. ``world.ball``), or pass through it."""
+        for link in range(-1, self._p.getNumJoints(self.robot)):
+            self._p.setCollisionFilterPair(self.robot, body, link, -1, int(enabled))
 
     def set_ball_color(self, rgba: Sequence[float]) -> None:
         """Repaint the ball."""

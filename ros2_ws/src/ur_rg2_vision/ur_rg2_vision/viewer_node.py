@@ -7,7 +7,8 @@ The ball's position comes in the camera's optical frame. It is shown in ``world`
 ``base_link`` too, through the transform tree (``/tf_static``). Without a tree (a sim that
 publishes none) the world coordinates are computed from the sim's camera pose, asked from the
 sim node's ``camera_position`` and ``camera_look_at`` parameters every few seconds (they may
-change). The last ``pick_ball`` result of the motion node is shown as it comes.
+change). The last ``pick_ball`` result of the motion node is shown as it comes, and whether
+the learned policy (ur_rg2_learning's ``policy`` node, ``policy/driving``) drives the arm.
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ from rclpy.parameter import parameter_value_to_python
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.task import Future
 from sensor_msgs.msg import Image, JointState
-from std_msgs.msg import String
+from std_msgs.msg import Bool, String
 from tf2_msgs.msg import TFMessage
 from ur_rg2_sim.camera_pose import optical_rotation
 from ur_rg2_sim.parameters import ParameterSpec, declare_parameters
@@ -43,7 +44,8 @@ CAMERA_FRAME = 'camera_color_optical_frame'
 _POSE_PARAMETERS = ('camera_position', 'camera_look_at')
 WORLD_FRAME = 'world'
 BASE_FRAME = 'base_link'
-# /tf_static and the motion node's pick result: latched, the last one arrives on subscribing.
+# /tf_static, the motion node's pick result and the policy node's state: latched, the last one
+# arrives on subscribing.
 _LATCHED_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                           durability=DurabilityPolicy.TRANSIENT_LOCAL)
 _POSE_PERIOD_S = 2.0  # how often the sim is asked for its camera pose
@@ -102,6 +104,7 @@ class ViewerNode(Node):
         self._tree = TransformBuffer()
         self.create_subscription(TFMessage, '/tf_static', self._tree.add_message, _LATCHED_QOS)
         self.create_subscription(String, 'pick_ball/result', self._on_pick_result, _LATCHED_QOS)
+        self.create_subscription(Bool, 'policy/driving', self._on_policy_driving, _LATCHED_QOS)
         self._to_world: Callable[[Sequence[float]], np.ndarray] | None = None
         self._pose_client = self.create_client(GetParameters, f'{SIM_NODE}/get_parameters')
         self._pose_question: tuple[Future, float] | None = None
@@ -157,6 +160,9 @@ class ViewerNode(Node):
 
     def _on_pick_result(self, msg: String) -> None:
         self._hub.set_state('pick', msg.data)
+
+    def _on_policy_driving(self, msg: Bool) -> None:
+        self._hub.set_state('policy_driving', msg.data)
 
     def _ask_camera_pose(self) -> None:
         if self._pose_question is not None:

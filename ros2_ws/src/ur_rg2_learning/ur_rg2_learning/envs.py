@@ -1,0 +1,298 @@
+"""Goal-conditioned Gymnasium environments on the sim's world core. No ROS.
+
+``UrRg2Reach-v0`` and ``UrRg2Pick-v0`` run :class:`ur_rg2_sim.world.SimWorld` (the physics the
+``sim`` node runs, without its camera) and move the arm the way the ``motion`` node does:
+closed-form UR inverse kinematics (:class:`ur_rg2_motion.kinematics.ArmKinematics`, with its
+floor and pedestal checks) turns a TCP target into joint targets.
+
+Observations are dicts like Gymnasium-Robotics' Fetch tasks (``observation``,
+``achieved_goal``, ``desired_goal``), every position in ``base_link``, metres. An action moves
+``rg2_tcp``'s target by up to ``MAX_STEP`` along each ``base_link`` axis, the gripper pointing
+straight down; Pick's fourth component closes (< 0) or opens (>= 0) the RG2.
+
+Speed: one step is one inverse kinematics solution, one joint command with the joint
+velocities fed forward (the sim's trajectory controller feeds them forward too, so the arm
+tracks within millimetres despite the long physics steps) and ``substeps`` physics steps.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import gymnasium as gym
+from gymnasium import spaces
+import numpy as np
+from ur_rg2_motion.kinematics import ARM_JOINTS, ArmKinematics, Box, KinematicsError
+from ur_rg2_motion.planning import PICK_POSTURE, gripper_down
+from ur_rg2_sim.world import SimWorld, WorldConfig
+
+CONTROL_RATE = 10.0  # Hz: one action per 0.1 s of simulation time
+MAX_STEP = 0.05  # m of TCP motion per step and axis at |action| = 1 (0.5 m/s)
+BALL_RADIUS = 0.03  # m, the sim's default ball
+REACH_TOLERANCE = 0.02  # m, TCP to the ball's top (the contract's)
+LIFT_SUCCESS = 0.10  # m, the ball's bottom above the floor, held (the contract's)
+LIFT_GOAL = 0.15  # m: Pick's goal is the ball this far above where it lay
+PICK_GOAL_TOLERANCE = 0.05  # m, the distance Pick's sparse reward accepts
+# The ball lies on the floor in this ring sector of base_link (distance from the base axis,
+# heading from x): in the UR3's reach as well as the UR5's, in front of the default camera.
+BALL_DISTANCE = (0.35, 0.55)
+BALL_HEADING = (math.radians(-80.0), math.radians(20.0))
+# Each episode starts with the TCP here (base_link), jittered by up to START_JITTER per axis.
+START_TCP = (0.4, -0.15, 0.1)
+START_JITTER = 0.05
+# TCP targets stay in this box (base_link); below it the fingers would touch the floor.
+TARGET_LOW = (-0.8, -0.8, None)
+TARGET_HIGH = (0.8, 0.8, 0.4)
+FLOOR_CLEARANCE = 0.005  # m: the motion node's default floor_clearance
+PEDESTAL_HALF_WIDTH = 0.11  # m: the motion node's default pedestal_half_width
+
+
+_DOWN = gripper_down((0.0, 0.0, 0.0), 0.0)
+
+
+def arm_kinematics(urdf: str, pedestal_height: float) -> ArmKinematics:
+    """Return the arm's kinematics with the floor and pedestal checks the motion node uses."""
+    half = PEDESTAL_HALF_WIDTH
+    return ArmKinematics.from_urdf(
+        urdf, floor_z=-pedestal_height, clearance=FLOOR_CLEARANCE,
+        keep_out=[Box((-half, -half, -pedestal_height - 1.0), (half, half, 0.0))])
+
+
+def target_bounds(arm: ArmKinematics) -> tuple[np.ndarray, np.ndarray]:
+    """Return the box (base_link) that TCP targets are clipped to, low and high corners."""
+    lowest = arm.floor_z + arm.finger_length + 2 * FLOOR_CLEARANCE
+    return np.array(TARGET_LOW[:2] + (lowest,)), np.array(TARGET_HIGH)
+
+
+def tcp_pose(position: np.ndarray) -> np.ndarray:
+    """Return the TCP pose (base_link) at ``position``, pointing down: every step's target."""
+    pose = _DOWN.copy()
+    pose[:3, 3] = position
+    return pose
+
+
+def start_joints(arm: ArmKinematics, position: np.ndarray) -> np.ndarray:
+    """Return the joints with the TCP at ``position`` in the pick posture (KinematicsError)."""
+    posture = np.array([math.atan2(position[1], position[0]), *PICK_POSTURE, 0.0])
+    return arm.solve(tcp_pose(position), posture)
+
+
+def _vector(size: int) -> spaces.Box:
+    return spaces.Box(-np.inf, np.inf, (size,), dtype=np.float32)
+
+
+class UrRg2Env(gym.Env):
+    """The common part: world, kinematics, TCP moves, goal-conditioned observations.
+
+    Pickling keeps the settings, not the state: a copy is a fresh environment (reset it), which
+    is what vectorised and distributed trainers need to start one world per process.
+    """
+
+    metadata = {'render_modes': []}
+    substeps = 2  # physics steps per action
+    gripper_action = False
+
+    def __init__(self, robot_model: str = 'ur5') -> None:
+        self._settings = {'robot_model': robot_model}
+        self.world = SimWorld(WorldConfig(robot_model=robot_model, ball_radius=BALL_RADIUS,
+                                          physics_rate=CONTROL_RATE * self.substeps))
+        height = self.world.pedestal_height
+        self._base = np.array([0.0, 0.0, height])  # base_link in the world frame
+        self.arm = arm_kinematics(self.world.urdf.read_text(), height)
+        self._low, self._high = target_bounds(self.arm)
+        observation, goal = self._sizes()
+        self.observation_space = spaces.Dict({
+            'observation': _vector(observation),
+            'achieved_goal': _vector(goal),
+            'desired_goal': _vector(goal),
+        })
+        self.action_space = spaces.Box(-1.0, 1.0, (4 if self.gripper_action else 3,),
+                                       dtype=np.float32)
+        self._joints = np.zeros(len(ARM_JOINTS))
+        self._tcp = np.zeros(3)
+        self._target = np.zeros(3)  # the commanded TCP position
+        self._tcp_velocity = np.zeros(3)
+        self._goal = np.zeros(3)
+
+    # -- what the tasks define ----------------------------------------------------------------
+
+    def _sizes(self) -> tuple[int, int]:
+        raise NotImplementedError
+
+    def _observe(self) -> dict[str, np.ndarray]:
+        raise NotImplementedError
+
+    def _is_success(self) -> bool:
+        raise NotImplementedError
+
+    def compute_reward(self, achieved_goal: np.ndarray, desired_goal: np.ndarray,
+                       info: Any) -> np.ndarray:
+        """Return the reward of goals (..., 3) and their infos; vectorised, for HER."""
+        raise NotImplementedError
+
+    # -- Gymnasium API ------------------------------------------------------------------------
+
+    def reset(self, *, seed: int | None = None,
+              options: dict[str, Any] | None = None) -> tuple[dict, dict]:
+        """Start an episode: ball somewhere on the floor, TCP near START_TCP, gripper open.
+
+        ``options`` may place them by hand (base_link, m): ``ball_position`` (x, y, or x, y,
+        z for the ball's centre) and ``tcp_position`` (x, y, z).
+        """
+        super().reset(seed=seed)
+        options = options or {}
+        rng = self.np_random
+        distance, heading = rng.uniform(*BALL_DISTANCE), rng.uniform(*BALL_HEADING)
+        start = np.add(START_TCP, rng.uniform(-START_JITTER, START_JITTER, 3))
+        ball = np.array([distance * math.cos(heading), distance * math.sin(heading),
+                         BALL_RADIUS - self._base[2]])
+        given = np.asarray(options.get('ball_position', ball[:2]), dtype=float)
+        ball[:len(given)] = given
+        start = np.asarray(options.get('tcp_position', start), dtype=float)
+        try:
+            joints = start_joints(self.arm, start)
+        except KinematicsError as error:
+            raise ValueError(f'tcp_position {start.tolist()} is out of reach: {error}') from None
+        self.world.set_arm_positions(dict(zip(ARM_JOINTS, joints.tolist())))
+        self.world.reset_gripper()
+        self.world.set_ball_position((ball + self._base).tolist())
+        self._joints = joints
+        self._target = start
+        self._tcp = np.array(self.world.link_pose()[0]) - self._base
+        self._tcp_velocity = np.zeros(3)
+        self._start_episode(ball)
+        return self._observe(), {'is_success': self._is_success()}
+
+    def _start_episode(self, ball: np.ndarray) -> None:
+        """Set the task's goal from the ball's starting centre (base_link)."""
+        raise NotImplementedError
+
+    def step(self, action: np.ndarray) -> tuple[dict, float, bool, bool, dict]:
+        """Move the TCP (and the gripper), run the physics for 1 / CONTROL_RATE s."""
+        action = np.clip(np.asarray(action, dtype=float), -1.0, 1.0)
+        self._command(action)
+        for _ in range(self.substeps):
+            self.world.step()
+        tcp = np.array(self.world.link_pose()[0]) - self._base
+        self._tcp_velocity = (tcp - self._tcp) * CONTROL_RATE
+        self._tcp = tcp
+        observation = self._observe()
+        info = {'is_success': self._is_success()}
+        reward = float(self.compute_reward(observation['achieved_goal'],
+                                           observation['desired_goal'], info))
+        return observation, reward, False, False, info
+
+    def _command(self, action: np.ndarray) -> None:
+        # From the last commanded target, not the measured TCP: a zero action then holds the
+        # arm still instead of letting it creep after its own tracking error.
+        target = np.clip(self._target + MAX_STEP * action[:3], self._low, self._high)
+        try:
+            joints = self.arm.solve(tcp_pose(target), self._joints)
+            self._target = target
+        except KinematicsError:
+            joints = self._joints  # refused (pedestal, reach): the arm holds its target
+        now = self.world.joint_states().positions[:len(ARM_JOINTS)]
+        velocities = (joints - now) * CONTROL_RATE
+        self.world.set_arm_targets(dict(zip(ARM_JOINTS, joints.tolist())),
+                                   dict(zip(ARM_JOINTS, velocities.tolist())))
+        self._joints = joints
+
+    def close(self) -> None:
+        """Disconnect the physics world."""
+        if self.world.client is not None:
+            self.world.close()
+
+    def __getstate__(self) -> dict[str, Any]:
+        return dict(self._settings)
+
+    def __setstate__(self, settings: dict[str, Any]) -> None:
+        self.__init__(**settings)
+
+
+class ReachEnv(UrRg2Env):
+    """Bring ``rg2_tcp`` to the top of the ball, the gripper pointing down.
+
+    observation: TCP position and velocity (6); achieved goal: the TCP; desired goal: the
+    ball's top. Reward: minus the distance (m). The arm passes through the ball (it is the
+    target, as Fetch's goal marker is), so the goal stays where the episode put it.
+    """
+
+    def _sizes(self) -> tuple[int, int]:
+        return 6, 3
+
+    def _start_episode(self, ball: np.ndarray) -> None:
+        self.world.set_robot_collisions(self.world.ball, False)
+        self._goal = ball + (0.0, 0.0, BALL_RADIUS)
+
+    def _observe(self) -> dict[str, np.ndarray]:
+        return {
+            'observation': np.concatenate([self._tcp, self._tcp_velocity]).astype(np.float32),
+            'achieved_goal': self._tcp.astype(np.float32),
+            'desired_goal': self._goal.astype(np.float32),
+        }
+
+    def _is_success(self) -> bool:
+        return bool(np.linalg.norm(self._tcp - self._goal) < REACH_TOLERANCE)
+
+    def compute_reward(self, achieved_goal: np.ndarray, desired_goal: np.ndarray,
+                       info: Any) -> np.ndarray:
+        """Return minus the distance (m) from the TCP to the ball's top."""
+        return -np.linalg.norm(np.asarray(achieved_goal) - np.asarray(desired_goal), axis=-1)
+
+
+class PickEnv(UrRg2Env):
+    """Grasp the ball and lift it.
+
+    observation: TCP position and velocity, gripper opening, ball position, ball relative to
+    the TCP, ball velocity (16); achieved goal: the ball's centre; desired goal: the ball's
+    centre LIFT_GOAL above where it lay. Reward: 0 within PICK_GOAL_TOLERANCE of the goal,
+    else -1 (sparse, as Fetch's pick). Success: the ball's bottom LIFT_SUCCESS above the
+    floor, held between the closed fingers.
+    """
+
+    # Grasps need shorter physics steps than free arm motion: 80 Hz holds the ball.
+    substeps = 8
+    gripper_action = True
+
+    def _sizes(self) -> tuple[int, int]:
+        return 16, 3
+
+    def _start_episode(self, ball: np.ndarray) -> None:
+        self._closed = False
+        self._ball = ball
+        self._goal = ball + (0.0, 0.0, LIFT_GOAL)
+
+    def _command(self, action: np.ndarray) -> None:
+        closed = bool(action[3] < 0.0)
+        if closed != self._closed:
+            if closed:
+                self.world.close_gripper()
+            else:
+                self.world.open_gripper()
+            self._closed = closed
+        super()._command(action)
+
+    def _observe(self) -> dict[str, np.ndarray]:
+        # Once per step (and at the reset, where the ball lies still where it was put).
+        ball = np.array(self.world.body_position(self.world.ball)) - self._base
+        self._ball_velocity = (ball - self._ball) * CONTROL_RATE
+        self._ball = ball
+        opening = self.world.gripper_opening()
+        return {
+            'observation': np.concatenate([
+                self._tcp, self._tcp_velocity, [opening], self._ball, self._ball - self._tcp,
+                self._ball_velocity]).astype(np.float32),
+            'achieved_goal': self._ball.astype(np.float32),
+            'desired_goal': self._goal.astype(np.float32),
+        }
+
+    def _is_success(self) -> bool:
+        bottom = self._ball[2] - BALL_RADIUS + self._base[2]  # above the floor (world z = 0)
+        return bool(bottom >= LIFT_SUCCESS and self.world.gripper_holds_object())
+
+    def compute_reward(self, achieved_goal: np.ndarray, desired_goal: np.ndarray,
+                       info: Any) -> np.ndarray:
+        """Return 0 where the ball is within PICK_GOAL_TOLERANCE of the goal, else -1."""
+        distance = np.linalg.norm(np.asarray(achieved_goal) - np.asarray(desired_goal), axis=-1)
+        return -(distance > PICK_GOAL_TOLERANCE).astype(np.float32)

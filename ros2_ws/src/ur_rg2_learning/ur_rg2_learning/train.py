@@ -1,0 +1,156 @@
+"""``train_policy``: train a DDPG baseline (Stable-Baselines3, with HER) on one environment.
+
+Writes to ``--out``: the actor for the run path (``actor.npz`` + ``policy.json``, see
+:mod:`ur_rg2_learning.actor`), the whole Stable-Baselines3 model (``model.zip``, to train on)
+and ``learning_curve.png``: the deterministic policy's success rate on ``--eval-episodes``
+fresh episodes every ``--eval-every`` steps. Needs the learning set-up
+(``scripts/bootstrap requirements-learning.txt``).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+import sys
+import time
+
+import gymnasium as gym
+import numpy as np
+
+from ur_rg2_learning import EPISODE_STEPS, PICK_ID, REACH_ID
+from ur_rg2_learning.actor import Actor, write_atomically
+from ur_rg2_learning.evaluate import success_rate
+
+# Curve episodes are seeded apart from training (small seeds) and from evaluate_policy's.
+CURVE_SEED = 500_000
+# DDPG + HER settings (Gymnasium-Robotics' Fetch tasks in the rl-baselines3-zoo, with a
+# wider network): HER relabels 4 of 5 sampled transitions with goals reached later.
+HYPERPARAMETERS = {
+    'learning_rate': 1e-3,
+    'buffer_size': 1_000_000,
+    'batch_size': 256,
+    'gamma': 0.95,
+    'tau': 0.05,
+    'learning_starts': 1000,
+    'net_arch': [256, 256],
+    'action_noise': 0.2,  # standard deviation of the Gaussian exploration noise
+    'her_goals': 4,
+}
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Train, export, plot; exit code 0, 2 when the learning set-up is missing."""
+    parser = argparse.ArgumentParser(prog='train_policy', description=__doc__.split('\n')[0])
+    parser.add_argument('--env', required=True, choices=[REACH_ID, PICK_ID])
+    parser.add_argument('--algo', default='ddpg', choices=['ddpg'])
+    parser.add_argument('--timesteps', type=int, required=True, help='environment steps')
+    parser.add_argument('--seed', type=int, default=0)
+    parser.add_argument('--out', required=True, help='directory to write the policy to')
+    parser.add_argument('--eval-every', type=int, default=0,
+                        help='steps between learning-curve points (default: timesteps / 20)')
+    parser.add_argument('--eval-episodes', type=int, default=20,
+                        help='episodes per learning-curve point (20)')
+    args = parser.parse_args(argv)
+    if args.timesteps < 1 or args.eval_episodes < 1:
+        parser.error('--timesteps and --eval-episodes must be positive')
+    try:
+        from stable_baselines3 import DDPG, HerReplayBuffer
+        from stable_baselines3.common.callbacks import BaseCallback
+        from stable_baselines3.common.noise import NormalActionNoise
+        import torch
+    except ImportError as error:
+        print(f'train_policy needs the learning set-up ({error}): run '
+              '`scripts/bootstrap requirements-learning.txt`', file=sys.stderr)
+        return 2
+
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    every = args.eval_every or max(args.timesteps // 20, 1)
+    torch.manual_seed(args.seed)
+    env = gym.make(args.env)
+    size = env.action_space.shape[0]
+    h = HYPERPARAMETERS
+    model = DDPG(
+        'MultiInputPolicy', env, seed=args.seed, learning_rate=h['learning_rate'],
+        buffer_size=min(h['buffer_size'], args.timesteps), batch_size=h['batch_size'],
+        gamma=h['gamma'], tau=h['tau'], learning_starts=min(h['learning_starts'],
+                                                            args.timesteps // 2),
+        action_noise=NormalActionNoise(np.zeros(size), h['action_noise'] * np.ones(size)),
+        replay_buffer_class=HerReplayBuffer,
+        replay_buffer_kwargs={'n_sampled_goal': h['her_goals'],
+                              'goal_selection_strategy': 'future'},
+        policy_kwargs={'net_arch': h['net_arch']}, verbose=0)
+    curve: list[tuple[int, float, float]] = []  # (steps, success rate, wall seconds)
+    started = time.monotonic()
+
+    def evaluate(steps: int) -> None:
+        rate = success_rate(export(model, args, env, time.monotonic() - started, curve),
+                            args.eval_episodes, CURVE_SEED, args.env)
+        curve.append((steps, rate, time.monotonic() - started))
+        print(f'{args.env} ddpg: {steps:>8d}/{args.timesteps} steps  success {rate:4.2f}  '
+              f'{time.monotonic() - started:6.0f} s', flush=True)
+
+    class Progress(BaseCallback):
+        def _on_step(self) -> bool:
+            if self.num_timesteps % every == 0:
+                evaluate(self.num_timesteps)
+            return True
+
+    model.learn(args.timesteps, callback=Progress())
+    if not curve or curve[-1][0] != args.timesteps:
+        evaluate(args.timesteps)
+    seconds = time.monotonic() - started
+    export(model, args, env, seconds, curve).save(out)
+    model.save(out / 'model.zip')
+    plot_curve(curve, args.env, out / 'learning_curve.png')
+    env.close()
+    print(f'{args.env}: trained {args.timesteps} steps in {seconds:.0f} s; success '
+          f'{curve[-1][1]:.2f} over {args.eval_episodes} episodes; wrote {out}')
+    return 0
+
+
+def export(model, args: argparse.Namespace, env: gym.Env, seconds: float,
+           curve: list[tuple[int, float, float]]) -> Actor:
+    """Return the model's actor as a NumPy :class:`Actor` with its training record."""
+    # Stable-Baselines3's MultiInputPolicy flattens the observation dict in the space's order.
+    network = model.actor.mu
+    linear = [layer for layer in network if hasattr(layer, 'weight')]
+    layers = [(layer.weight.detach().cpu().numpy().copy(),
+               layer.bias.detach().cpu().numpy().copy()) for layer in linear]
+    meta = {
+        'env_id': args.env,
+        'algo': args.algo,
+        'observation_keys': list(env.observation_space.spaces),
+        'action_low': env.action_space.low.tolist(),
+        'action_high': env.action_space.high.tolist(),
+        'episode_steps': EPISODE_STEPS[args.env],
+        'timesteps': args.timesteps,
+        'seed': args.seed,
+        'train_seconds': round(seconds, 1),
+        'hyperparameters': HYPERPARAMETERS,
+        'curve': [{'steps': s, 'success': r, 'seconds': round(t, 1)} for s, r, t in curve],
+    }
+    return Actor(layers, meta)
+
+
+def plot_curve(curve: list[tuple[int, float, float]], env_id: str, path: Path) -> None:
+    """Draw success rate over environment steps (wall time on the top axis) into ``path``."""
+    import matplotlib
+    matplotlib.use('Agg')
+    from matplotlib import pyplot
+
+    steps, rates, seconds = zip(*curve)
+    figure, axes = pyplot.subplots(figsize=(6.4, 3.6), dpi=100)
+    axes.plot(steps, rates, marker='o', markersize=3)
+    axes.set_xlabel('environment steps')
+    axes.set_ylabel('success rate')
+    axes.set_ylim(-0.02, 1.02)
+    axes.grid(alpha=0.3)
+    axes.set_title(f'{env_id}, DDPG + HER: {seconds[-1] / 60:.1f} min of training')
+    figure.tight_layout()
+    write_atomically(path, lambda f: figure.savefig(f, format='png'))
+    pyplot.close(figure)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,6 +1,7 @@
 """Run every benchmark and print one table: ``python -m bench [name ...]``.
 
-Names: sim, frames, controllers, teleop, vision, viewer, dataset, motion, setup (default: all).
+Names: sim, frames, controllers, teleop, vision, viewer, dataset, motion, learning, setup
+(default: all).
 Each module's ``run()`` returns rows of (metric, measured, target). The numbers mean most on
 an otherwise idle machine.
 """
@@ -11,7 +12,7 @@ import sys
 import time
 
 BENCHMARKS = ('sim', 'frames', 'controllers', 'teleop', 'vision', 'viewer', 'dataset',
-              'motion', 'setup')
+              'motion', 'learning', 'setup')
 
 
 def print_table(rows: list[tuple[str, str, str]]) -> None:

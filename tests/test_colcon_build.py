@@ -21,7 +21,7 @@ from sensor_msgs.msg import JointState
 ROOT = Path(__file__).resolve().parents[1]
 # The contract's executables; every other console script a package declares is checked too.
 EXECUTABLES = {'ur_rg2_sim': 'sim', 'ur_rg2_teleop': 'keys', 'ur_rg2_vision': 'vision',
-               'ur_rg2_motion': 'motion'}
+               'ur_rg2_motion': 'motion', 'ur_rg2_learning': 'policy'}
 ARM_JOINTS = ['shoulder_pan_joint', 'shoulder_lift_joint', 'elbow_joint', 'wrist_1_joint',
               'wrist_2_joint', 'wrist_3_joint']
 

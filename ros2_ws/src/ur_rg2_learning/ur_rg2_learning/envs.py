@@ -46,6 +46,7 @@ TARGET_LOW = (-0.8, -0.8, None)
 TARGET_HIGH = (0.8, 0.8, 0.4)
 FLOOR_CLEARANCE = 0.005  # m: the motion node's default floor_clearance
 PEDESTAL_HALF_WIDTH = 0.11  # m: the motion node's default pedestal_half_width
+OBSERVATION_BOUND = 10.0  # m, m/s
 
 
 _DOWN = gripper_down((0.0, 0.0, 0.0), 0.0)
@@ -79,7 +80,8 @@ def start_joints(arm: ArmKinematics, position: np.ndarray) -> np.ndarray:
 
 
 def _vector(size: int) -> spaces.Box:
-    return spaces.Box(-np.inf, np.inf, (size,), dtype=np.float32)
+    # Positions (m) and velocities (m/s) in base_link, well beyond what the arm reaches.
+    return spaces.Box(-OBSERVATION_BOUND, OBSERVATION_BOUND, (size,), dtype=np.float32)
 
 
 class UrRg2Env(gym.Env):

@@ -67,6 +67,10 @@ def main(argv: list[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     every = args.eval_every or max(args.timesteps // 20, 1)
     torch.manual_seed(args.seed)
+    # DDPG's networks are small: one thread computes them fastest. With one per core, torch's
+    # threads wait on each other whenever the machine is busy (the environment, other
+    # processes): a 256x256 layer took 18 ms instead of 1.6 ms on the loaded 2-core machine.
+    torch.set_num_threads(1)
     env = gym.make(args.env)
     size = env.action_space.shape[0]
     h = HYPERPARAMETERS

@@ -1,0 +1,146 @@
+"""The Gymnasium environments of ur_rg2_learning: API, determinism, success flags, vector path.
+
+No ROS: the environments run the sim's plain world core.
+"""
+
+import pickle
+import warnings
+
+import gymnasium as gym
+from gymnasium.utils.env_checker import check_env
+import numpy as np
+import pytest
+from ur_rg2_learning import PICK_ID, REACH_ID
+from ur_rg2_learning.envs import BALL_RADIUS, REACH_TOLERANCE
+
+# base_link: the floor is 0.2 m below it (the pedestal), so a ball on it lies at z = -0.17.
+BALL = np.array([0.45, -0.2])
+BALL_Z = -0.2 + BALL_RADIUS
+
+
+@pytest.fixture
+def make():
+    """gym.make for the test; every environment made is closed afterwards."""
+    made = []
+
+    def make_env(env_id: str) -> gym.Env:
+        made.append(gym.make(env_id))
+        return made[-1]
+
+    yield make_env
+    for env in made:
+        env.close()
+
+
+def rollout(env: gym.Env, seed: int, steps: int) -> list[np.ndarray]:
+    """Return the concatenated observations of ``steps`` seeded random actions."""
+    observation, _ = env.reset(seed=seed)
+    env.action_space.seed(seed)
+    history = [np.concatenate([*observation.values(), [0.0]])]
+    for _ in range(steps):
+        observation, reward, *_ = env.step(env.action_space.sample())
+        history.append(np.concatenate([*observation.values(), [reward]]))
+    return history
+
+
+@pytest.mark.parametrize('env_id', [REACH_ID, PICK_ID])
+def test_check_env_passes_without_warnings(env_id, make):
+    env = make(env_id)
+    with warnings.catch_warnings():
+        warnings.simplefilter('error')
+        check_env(env.unwrapped)
+    assert set(env.observation_space.spaces) == {'observation', 'achieved_goal', 'desired_goal'}
+    assert env.action_space.shape == ((3,) if env_id == REACH_ID else (4,))
+
+
+@pytest.mark.parametrize('env_id', [REACH_ID, PICK_ID])
+def test_seeded_episodes_repeat_exactly(env_id, make):
+    first, second = make(env_id), make(env_id)
+    reference = rollout(first, seed=7, steps=30)
+    # Another environment, and the same one after an episode from another seed.
+    assert np.array_equal(np.array(rollout(second, seed=7, steps=30)), np.array(reference))
+    rollout(first, seed=8, steps=30)
+    assert np.array_equal(np.array(rollout(first, seed=7, steps=30)), np.array(reference))
+    other = rollout(second, seed=9, steps=0)[0]
+    assert not np.array_equal(other, reference[0])  # another seed: another ball and start
+
+
+def test_reach_success_only_at_the_ball_top(make):
+    env = make(REACH_ID)
+    top = np.array([*BALL, BALL_Z + BALL_RADIUS])
+    still = np.zeros(3, dtype=np.float32)
+    observation, info = env.reset(options={'ball_position': BALL, 'tcp_position': top})
+    assert info['is_success']
+    observation, reward, _, _, info = env.step(still)
+    assert info['is_success']
+    assert np.allclose(observation['desired_goal'], top)
+    assert reward == pytest.approx(-np.linalg.norm(observation['achieved_goal'] - top), abs=1e-6)
+    assert -reward < 0.005  # the arm holds the TCP there
+
+    for offset in ((0, 0, 0.05), (0.03, 0, 0), (0, 0, 2.5 * REACH_TOLERANCE)):
+        _, info = env.reset(options={'ball_position': BALL, 'tcp_position': top + offset})
+        assert not env.step(still)[4]['is_success'], offset
+
+    # compute_reward is vectorised over goals, as HER calls it.
+    achieved = np.array([top, top + (0, 0, 0.1)])
+    desired = np.array([top, top])
+    assert env.unwrapped.compute_reward(achieved, desired, [{}, {}]) == pytest.approx(
+        [0.0, -0.1])
+
+
+def test_pick_success_needs_the_ball_held_and_lifted(make):
+    env = make(PICK_ID)
+    # The TCP low between the open fingers around the ball, as the motion node's pick grasps.
+    options = {'ball_position': BALL, 'tcp_position': [*BALL, BALL_Z + 0.01]}
+    close, close_and_lift = np.array([0, 0, 0, -1.0]), np.array([0, 0, 1.0, -1.0])
+    open_and_lift = np.array([0, 0, 1.0, 1.0])
+
+    env.reset(options=options)
+    for _ in range(5):
+        info = env.step(close)[4]
+    assert not info['is_success']  # held, still on the floor
+    for _ in range(6):
+        observation, reward, _, _, info = env.step(close_and_lift)
+    assert info['is_success']
+    assert observation['achieved_goal'][2] > BALL_Z + 0.1  # the ball came up with the gripper
+
+    env.reset(options=options)
+    for _ in range(11):
+        observation, _, _, _, info = env.step(open_and_lift)
+    assert not info['is_success']  # the open gripper lifts nothing
+    assert observation['achieved_goal'][2] == pytest.approx(BALL_Z, abs=0.005)
+
+    goal = observation['desired_goal']
+    assert env.unwrapped.compute_reward(np.array([goal, goal - (0, 0, 0.15)]),
+                                        np.array([goal, goal]), None) == pytest.approx([0, -1])
+
+
+def test_two_worker_processes_step_the_same_worlds(make):
+    """AsyncVectorEnv: one world per process, as on one core each (or many machines)."""
+    envs = gym.vector.AsyncVectorEnv([lambda: gym.make(REACH_ID)] * 2)
+    try:
+        observations, _ = envs.reset(seed=[3, 4])
+        actions = np.tile(np.linspace(-1, 1, 3, dtype=np.float32), (2, 1))
+        for _ in range(5):
+            observations, rewards, _, _, infos = envs.step(actions)
+    finally:
+        envs.close()
+    assert observations['observation'].shape == (2, 6)
+    assert rewards.shape == (2,) and infos['is_success'].shape == (2,)
+    for worker, seed in enumerate((3, 4)):  # each worker as one environment in this process
+        local = make(REACH_ID)
+        local.reset(seed=seed)
+        for _ in range(5):
+            expected = local.step(actions[0])[0]
+        for key in expected:
+            assert np.array_equal(observations[key][worker], expected[key]), (worker, key)
+
+
+def test_a_pickled_environment_is_a_fresh_one_with_the_same_settings(make):
+    env = make(REACH_ID).unwrapped
+    copy = pickle.loads(pickle.dumps(env))
+    try:
+        assert copy.world.client != env.world.client  # its own physics world
+        assert np.array_equal(rollout(copy, 5, 3)[-1], rollout(env, 5, 3)[-1])
+    finally:
+        copy.close()

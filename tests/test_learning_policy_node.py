@@ -2,7 +2,7 @@
 
 The sim runs in-process (camera off); a probe publishes ``ball/position`` in the world frame
 where the sim has the ball, as the vision node would in its optical frame, and reads the TCP
-back from /tf. The policy node runs the shipped Reach policy on simulation time.
+back from /tf. The policy node runs the shipped Reach policy.
 """
 
 import threading
@@ -31,8 +31,7 @@ RADIUS = 0.03
 def test_policy_run_drives_the_tcp_to_the_ball(ros_graph):
     start_sim(ros_graph, camera_rate=0.0, real_time_factor=2.0, ball_position=list(BALL),
               ball_radius=RADIUS)
-    policy = ros_graph.add(PolicyNode(context=ros_graph.context, parameter_overrides=[
-        Parameter('use_sim_time', value=True)]))
+    policy = ros_graph.add(PolicyNode(context=ros_graph.context))
     probe = ros_graph.node('probe')
     tree = TransformBuffer()
     probe.create_subscription(TFMessage, '/tf_static', tree.add_message, LATCHED)

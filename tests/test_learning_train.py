@@ -55,9 +55,9 @@ def test_train_save_load_evaluate(tmp_path):
     assert actor.env_id == REACH_ID and actor.meta['timesteps'] == STEPS
     # The NumPy actor is the trained network: same actions as Stable-Baselines3's model.
     from stable_baselines3 import DDPG
-    model = DDPG.load(out / 'model.zip', device='cpu')
     env = gym.make(REACH_ID)
     try:
+        model = DDPG.load(out / 'model.zip', env=env, device='cpu')  # HER needs the env
         observation, _ = env.reset(seed=SEED)
         for _ in range(5):
             expected, _ = model.predict(observation, deterministic=True)

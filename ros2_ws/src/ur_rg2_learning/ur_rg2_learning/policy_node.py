@@ -2,14 +2,15 @@
 
 ``policy/run`` (std_srvs/Trigger) starts one episode: the arm first goes to the episode's
 start pose (the environment's, ur_rg2_learning.envs.START_TCP, in the pick posture), then
-the policy acts at the environment's control rate. Its observation is built as the
-environment builds it: the TCP from ``joint_states`` (closed-form forward kinematics of
-``robot_description``), the goal from the latest ``ball/position`` transformed through the
-tree into ``base_link``. Each action moves the TCP target as in the environment; the joints
-that reach it (closed-form inverse kinematics) go to the sim's
-``joint_trajectory_controller/follow_joint_trajectory`` as a one-point trajectory due one
-control period later, each goal replacing the last. The episode ends when the TCP is at the
-ball (the environment's success) or after the environment's episode length.
+the policy acts step by step. Its observation is built as the environment builds it: the TCP
+from ``joint_states`` (closed-form forward kinematics of ``robot_description``), the goal
+from the latest ``ball/position`` transformed through the tree into ``base_link``. Each action
+moves the TCP target as in the environment; the joints that reach it (closed-form inverse
+kinematics) go to the sim's ``joint_trajectory_controller/follow_joint_trajectory`` as a
+one-point trajectory due one control period (0.1 s) later, and the next step starts when the
+controller has finished it: in step with the simulation, as in training, however fast the sim
+runs and however loaded the machine is. The episode ends when the TCP is at the ball (the
+environment's success) or after the environment's episode length.
 ``policy/driving`` (std_msgs/Bool, latched) says whether the policy is driving the arm.
 """
 
@@ -67,7 +68,8 @@ LATCHED_QOS = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
 TF_QOS = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST,
                     reliability=ReliabilityPolicy.RELIABLE)
 _START_SPEED_SCALE = 0.4  # share of the joints' velocity limits for the move to the start
-_START_TIMEOUT = 30.0  # s for the start move
+_START_TIMEOUT = 30.0  # s for the start move beyond its duration
+_STEP_TIMEOUT = 10.0  # s for one step's goal to be answered and done
 
 _PARAMETERS = (
     ParameterSpec('policy_dir', '', 'Directory of the trained Reach policy (train_policy '
@@ -114,7 +116,7 @@ class PolicyNode(Node):
         self._driving = self.create_publisher(Bool, 'policy/driving', LATCHED_QOS)
         self._driving.publish(Bool(data=False))
         self.create_service(Trigger, 'policy/run', self._on_run)
-        self.create_timer(1.0 / CONTROL_RATE, self._tick)
+        self.create_timer(1.0, self._watch)
         self.get_logger().info(f'{REACH_ID} policy from {directory}; policy/run starts an '
                                'episode')
 
@@ -198,7 +200,7 @@ class PolicyNode(Node):
             return response
         trajectory = plan_joint_move(joints, start_q, self._velocity_limits,
                                      _START_SPEED_SCALE, 1.0 / CONTROL_RATE)
-        episode = {'phase': 'start', 'target': start, 'joints': start_q, 'step': 0,
+        episode = {'target': start, 'joints': start_q, 'step': 0,
                    'previous': None, 'started': time.monotonic(),
                    'deadline': time.monotonic() + trajectory.duration + _START_TIMEOUT}
         with self._lock:
@@ -225,19 +227,14 @@ class PolicyNode(Node):
             self._end(episode, 'the move to the start pose ended early: '
                       f'{future.result().result.error_string}')
             return
-        with self._lock:
-            if self._episode is episode:
-                episode['phase'] = 'drive'
+        self._step(episode)
 
-    def _tick(self) -> None:
+    def _step(self, episode: dict) -> None:
+        """Observe, act and send one step; the next starts when the controller is done."""
         with self._lock:
-            episode, joints = self._episode, self._joints
-        if episode is None:
-            return
-        if episode['phase'] == 'start':
-            if time.monotonic() > episode['deadline']:
-                self._end(episode, 'the arm did not reach the start pose')
-            return
+            if self._episode is not episode:
+                return
+            joints = self._joints
         try:
             goal = self._goal()
         except ValueError as error:
@@ -267,7 +264,22 @@ class PolicyNode(Node):
         except KinematicsError:
             pass  # as in the environment: the arm holds its target
         episode['step'] += 1
-        self._send([1.0 / CONTROL_RATE], episode['joints'][None])
+        episode['deadline'] = time.monotonic() + _STEP_TIMEOUT
+        self._send([1.0 / CONTROL_RATE], episode['joints'][None]).add_done_callback(
+            lambda future: self._on_step_goal(future, episode))
+
+    def _on_step_goal(self, future, episode: dict) -> None:
+        handle = future.result()
+        if not handle.accepted:  # refused (too fast for a joint): the arm holds, go on
+            self._step(episode)
+            return
+        handle.get_result_async().add_done_callback(lambda _: self._step(episode))
+
+    def _watch(self) -> None:
+        with self._lock:
+            episode = self._episode
+        if episode is not None and time.monotonic() > episode['deadline']:
+            self._end(episode, f'no answer from {TRAJECTORY_ACTION} in time')
 
     def _send(self, times, positions):
         goal = FollowJointTrajectory.Goal()

@@ -85,6 +85,18 @@ def test_sourced_install_resolves_packages_from_it_and_rclpy_from_the_venv(works
     assert Path(rclpy_module).is_relative_to(sys.prefix)
 
 
+def test_install_carries_the_shipped_policy(workspace):
+    probe = ('from ur_rg2_learning.actor import Actor\n'
+             'from ur_rg2_learning.policy_node import shipped_policy\n'
+             'print(shipped_policy()); print(Actor.load(shipped_policy()).env_id)')
+    out = subprocess.run(in_workspace(workspace, sys.executable, '-c', probe),
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    directory, env_id = out.stdout.split()
+    assert Path(directory).is_relative_to(workspace / 'install/ur_rg2_learning/lib')
+    assert env_id == 'UrRg2Reach-v0'
+
+
 def test_installed_sim_publishes_joint_states(workspace, ros_graph, tmp_path):
     received: list[JointState] = []
     ros_graph.node('listener').create_subscription(

@@ -92,7 +92,7 @@ class UrRg2Env(gym.Env):
     """
 
     metadata = {'render_modes': []}
-    substeps = 2  # physics steps per action
+    substeps = 1  # physics steps per action
     gripper_action = False
 
     def __init__(self, robot_model: str = 'ur5') -> None:
@@ -194,8 +194,9 @@ class UrRg2Env(gym.Env):
             self._target = target
         except KinematicsError:
             joints = self._joints  # refused (pedestal, reach): the arm holds its target
-        now = self.world.joint_states().positions[:len(ARM_JOINTS)]
-        velocities = (joints - now) * CONTROL_RATE
+        # The speed that takes the last target to this one in one step, fed forward as the
+        # trajectory controller feeds its path's speed.
+        velocities = (joints - self._joints) * CONTROL_RATE
         self.world.set_arm_targets(dict(zip(ARM_JOINTS, joints.tolist())),
                                    dict(zip(ARM_JOINTS, velocities.tolist())))
         self._joints = joints

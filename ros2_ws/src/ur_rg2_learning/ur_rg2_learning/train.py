@@ -23,6 +23,7 @@ from ur_rg2_learning.evaluate import success_rate
 
 # Curve episodes are seeded apart from training (small seeds) and from evaluate_policy's.
 CURVE_SEED = 500_000
+DEMO_SEED = 700_000  # and the demonstrations' episodes, apart from both
 # DDPG + HER settings (Gymnasium-Robotics' Fetch tasks in the rl-baselines3-zoo, with a
 # wider network): HER relabels 4 of 5 sampled transitions with goals reached later.
 HYPERPARAMETERS = {
@@ -50,9 +51,14 @@ def main(argv: list[str] | None = None) -> int:
                         help='steps between learning-curve points (default: timesteps / 20)')
     parser.add_argument('--eval-episodes', type=int, default=20,
                         help='episodes per learning-curve point (20)')
+    parser.add_argument('--demos', type=int, default=0,
+                        help=f'{PICK_ID} only: scripted pick episodes put into the replay '
+                        'buffer before training (0)')
     args = parser.parse_args(argv)
-    if args.timesteps < 1 or args.eval_episodes < 1:
-        parser.error('--timesteps and --eval-episodes must be positive')
+    if args.timesteps < 1 or args.eval_episodes < 1 or args.demos < 0:
+        parser.error('--timesteps and --eval-episodes must be positive, --demos not negative')
+    if args.demos and args.env != PICK_ID:
+        parser.error(f'--demos is for {PICK_ID}')
     try:
         from stable_baselines3 import DDPG, HerReplayBuffer
         from stable_baselines3.common.callbacks import BaseCallback
@@ -76,7 +82,8 @@ def main(argv: list[str] | None = None) -> int:
     h = HYPERPARAMETERS
     model = DDPG(
         'MultiInputPolicy', env, seed=args.seed, learning_rate=h['learning_rate'],
-        buffer_size=min(h['buffer_size'], args.timesteps), batch_size=h['batch_size'],
+        buffer_size=min(h['buffer_size'], args.timesteps + args.demos * EPISODE_STEPS[args.env]),
+        batch_size=h['batch_size'],
         gamma=h['gamma'], tau=h['tau'], learning_starts=min(h['learning_starts'],
                                                             args.timesteps // 2),
         action_noise=NormalActionNoise(np.zeros(size), h['action_noise'] * np.ones(size)),
@@ -86,6 +93,7 @@ def main(argv: list[str] | None = None) -> int:
         policy_kwargs={'net_arch': h['net_arch']}, verbose=0)
     curve: list[tuple[int, float, float]] = []  # (steps, success rate, wall seconds)
     started = time.monotonic()
+    add_demonstrations(model.replay_buffer, args.env, args.demos)
 
     def evaluate(steps: int) -> None:
         rate = success_rate(export(model, args, env, time.monotonic() - started, curve),
@@ -106,11 +114,35 @@ def main(argv: list[str] | None = None) -> int:
     seconds = time.monotonic() - started
     export(model, args, env, seconds, curve).save(out)
     model.save(out / 'model.zip')
-    plot_curve(curve, args.env, out / 'learning_curve.png')
+    method = 'DDPG + HER' + (f' + {args.demos} scripted demos' if args.demos else '')
+    plot_curve(curve, f'{args.env}, {method}', out / 'learning_curve.png')
     env.close()
     print(f'{args.env}: trained {args.timesteps} steps in {seconds:.0f} s; success '
           f'{curve[-1][1]:.2f} over {args.eval_episodes} episodes; wrote {out}')
     return 0
+
+
+def add_demonstrations(buffer, env_id: str, episodes: int) -> None:
+    """Put ``episodes`` of the scripted pick into the replay buffer, as if it had acted."""
+    from ur_rg2_learning.scripted import pick_action
+
+    env = gym.make(env_id)
+    try:
+        for episode in range(episodes):
+            observation, _ = env.reset(seed=DEMO_SEED + episode)
+            done = False
+            while not done:
+                action = pick_action(observation)
+                following, reward, terminated, truncated, info = env.step(action)
+                done = terminated or truncated
+                # Stable-Baselines3's flag for an episode cut by its time limit.
+                info = dict(info, **{'TimeLimit.truncated': truncated and not terminated})
+                buffer.add({key: value[None] for key, value in observation.items()},
+                           {key: value[None] for key, value in following.items()},
+                           action[None], np.array([reward]), np.array([done]), [info])
+                observation = following
+    finally:
+        env.close()
 
 
 def export(model, args: argparse.Namespace, env: gym.Env, seconds: float,
@@ -130,6 +162,7 @@ def export(model, args: argparse.Namespace, env: gym.Env, seconds: float,
         'episode_steps': EPISODE_STEPS[args.env],
         'timesteps': args.timesteps,
         'seed': args.seed,
+        'demos': args.demos,
         'train_seconds': round(seconds, 1),
         'hyperparameters': HYPERPARAMETERS,
         'curve': [{'steps': s, 'success': r, 'seconds': round(t, 1)} for s, r, t in curve],
@@ -137,7 +170,7 @@ def export(model, args: argparse.Namespace, env: gym.Env, seconds: float,
     return Actor(layers, meta)
 
 
-def plot_curve(curve: list[tuple[int, float, float]], env_id: str, path: Path) -> None:
+def plot_curve(curve: list[tuple[int, float, float]], title: str, path: Path) -> None:
     """Draw success rate over environment steps (wall time on the top axis) into ``path``."""
     import matplotlib
     matplotlib.use('Agg')
@@ -150,7 +183,7 @@ def plot_curve(curve: list[tuple[int, float, float]], env_id: str, path: Path) -
     axes.set_ylabel('success rate')
     axes.set_ylim(-0.02, 1.02)
     axes.grid(alpha=0.3)
-    axes.set_title(f'{env_id}, DDPG + HER: {seconds[-1] / 60:.1f} min of training')
+    axes.set_title(f'{title}: {seconds[-1] / 60:.1f} min of training')
     figure.tight_layout()
     write_atomically(path, lambda f: figure.savefig(f, format='png'))
     pyplot.close(figure)

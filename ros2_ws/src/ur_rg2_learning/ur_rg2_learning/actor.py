@@ -8,12 +8,12 @@ concatenated, the action bounds and how it was trained). ``train_policy`` writes
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 import json
 import os
 from pathlib import Path
 import tempfile
-from typing import Any
+from typing import Any, BinaryIO
 
 import numpy as np
 
@@ -51,7 +51,7 @@ class Actor:
                 layers = [(data[f'w{i}'].astype(np.float64), data[f'b{i}'].astype(np.float64))
                           for i in range(count)]
             actor = cls(layers, meta)
-        except (OSError, KeyError, ValueError) as error:
+        except (OSError, KeyError, ValueError, TypeError) as error:
             raise PolicyError(f'no usable policy in {directory}: {error}') from None
         if not layers or layers[-1][0].shape[0] != actor.low.shape[0]:
             raise PolicyError(f'no usable policy in {directory}: the layers do not fit the '
@@ -80,7 +80,7 @@ class Actor:
         return self.low + (squashed + 1.0) * 0.5 * (self.high - self.low)
 
 
-def write_atomically(path: Path, write) -> None:
+def write_atomically(path: Path, write: Callable[[BinaryIO], object]) -> None:
     """Write ``path`` whole or not at all: ``write(file)`` into a temporary file, then rename."""
     handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=f'.{path.name}.')
     try:

@@ -39,7 +39,13 @@ from std_msgs.msg import Bool, String
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 from trajectory_msgs.msg import JointTrajectoryPoint
-from ur_rg2_motion.kinematics import ARM_JOINTS, BASE_LINK, KinematicsError, urdf_velocity_limits
+from ur_rg2_motion.kinematics import (
+    ARM_JOINTS,
+    BASE_LINK,
+    ArmKinematics,
+    KinematicsError,
+    urdf_velocity_limits,
+)
 from ur_rg2_motion.planning import plan_joint_move
 from ur_rg2_sim.parameters import ParameterSpec, declare_parameters
 from ur_rg2_sim.tf_buffer import FrameLookupError, TransformBuffer, transform_point
@@ -144,7 +150,7 @@ class PolicyNode(Node):
         with self._lock:
             self._ball = (time.monotonic(), message)
 
-    def _kinematics(self):
+    def _kinematics(self) -> ArmKinematics:
         with self._lock:
             if self._arm is not None:
                 return self._arm
@@ -237,10 +243,10 @@ class PolicyNode(Node):
             joints = self._joints
         try:
             goal = self._goal()
-        except ValueError as error:
+            arm = self._kinematics()
+        except (ValueError, KinematicsError) as error:
             self._end(episode, f'stopped: {error}')
             return
-        arm = self._kinematics()
         tcp = arm.tcp_pose(joints)[:3, 3]
         previous = episode['previous']
         velocity = np.zeros(3) if previous is None else (tcp - previous) * CONTROL_RATE

@@ -1,10 +1,11 @@
 """``train_policy``: train a DDPG baseline (Stable-Baselines3, with HER) on one environment.
 
-Writes to ``--out``: the actor for the run path (``actor.npz`` + ``policy.json``, see
-:mod:`ur_rg2_learning.actor`), the whole Stable-Baselines3 model (``model.zip``, to train on)
-and ``learning_curve.png``: the deterministic policy's success rate on ``--eval-episodes``
-fresh episodes every ``--eval-every`` steps. Needs the learning set-up
-(``scripts/bootstrap requirements-learning.txt``).
+Shows a progress bar (rate, ETA) and writes to ``--out``: the actor for the run path
+(``actor.npz`` + ``policy.json``, see :mod:`ur_rg2_learning.actor`), the whole
+Stable-Baselines3 model (``model.zip``, to train on) and ``learning_curve.png``: the
+deterministic policy's success rate on ``--eval-episodes`` fresh episodes every
+``--eval-every`` steps. Needs the learning set-up (``scripts/bootstrap
+requirements-learning.txt``).
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import time
 
 import gymnasium as gym
 import numpy as np
+from ur_rg2_vision.dataset import Progress
 
 from ur_rg2_learning import EPISODE_STEPS, PICK_ID, REACH_ID
 from ur_rg2_learning.actor import Actor, write_atomically
@@ -95,20 +97,29 @@ def main(argv: list[str] | None = None) -> int:
     started = time.monotonic()
     add_demonstrations(model.replay_buffer, args.env, args.demos)
 
+    # The data set command's bar (rate, ETA) on a terminal; a line per curve point otherwise.
+    progress = Progress(args.timesteps, every=every)
+
     def evaluate(steps: int) -> None:
         rate = success_rate(export(model, args, env, time.monotonic() - started, curve),
                             args.eval_episodes, CURVE_SEED, args.env)
         curve.append((steps, rate, time.monotonic() - started))
+        if progress.tty:
+            progress.stream.write('\n')
         print(f'{args.env} ddpg: {steps:>8d}/{args.timesteps} steps  success {rate:4.2f}  '
               f'{time.monotonic() - started:6.0f} s', flush=True)
 
-    class Progress(BaseCallback):
+    class Steps(BaseCallback):
         def _on_step(self) -> bool:
+            progress.advance()
             if self.num_timesteps % every == 0:
                 evaluate(self.num_timesteps)
             return True
 
-    model.learn(args.timesteps, callback=Progress())
+    try:
+        model.learn(args.timesteps, callback=Steps())
+    finally:
+        progress.close()
     if not curve or curve[-1][0] != args.timesteps:
         evaluate(args.timesteps)
     seconds = time.monotonic() - started

@@ -35,7 +35,7 @@ LIFT_SUCCESS = 0.10  # m, the ball's bottom above the floor, held (the contract'
 LIFT_GOAL = 0.15  # m: Pick's goal is the ball this far above where it lay
 PICK_GOAL_TOLERANCE = 0.05  # m, the distance Pick's sparse reward accepts
 # The ball lies on the floor in this ring sector of base_link (distance from the base axis,
-# heading from x): in the UR3's reach as well as the UR5's, in front of the default camera.
+# heading from x): in front of the default camera, in the UR5's reach (the UR3 reaches most).
 BALL_DISTANCE = (0.35, 0.55)
 BALL_HEADING = (math.radians(-80.0), math.radians(20.0))
 # Each episode starts with the TCP here (base_link), jittered by up to START_JITTER per axis.

@@ -40,7 +40,6 @@ from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 from trajectory_msgs.msg import JointTrajectoryPoint
 from ur_rg2_motion.kinematics import (
-    ARM_JOINTS,
     BASE_LINK,
     ArmKinematics,
     KinematicsError,
@@ -48,8 +47,9 @@ from ur_rg2_motion.kinematics import (
 )
 from ur_rg2_motion.planning import plan_joint_move
 from ur_rg2_sim.parameters import ParameterSpec, declare_parameters
+from ur_rg2_sim.robot_model import ARM_JOINTS
+from ur_rg2_sim.spin import run_node
 from ur_rg2_sim.tf_buffer import FrameLookupError, TransformBuffer, transform_point
-from ur_rg2_vision.spin import run_node
 
 from ur_rg2_learning import EPISODE_STEPS, REACH_ID
 from ur_rg2_learning.actor import Actor, PolicyError

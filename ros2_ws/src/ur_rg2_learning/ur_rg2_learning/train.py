@@ -4,8 +4,8 @@ Shows a progress bar (rate, ETA) and writes to ``--out``: the actor for the run 
 (``actor.npz`` + ``policy.json``, see :mod:`ur_rg2_learning.actor`), the whole
 Stable-Baselines3 model (``model.zip``, to train on) and ``learning_curve.png``: the
 deterministic policy's success rate on ``--eval-episodes`` fresh episodes every
-``--eval-every`` steps. Needs the learning set-up (``scripts/bootstrap
-requirements-learning.txt``).
+``--eval-every`` steps; ``best/`` the actor of the curve's best point. Needs the learning
+set-up (``scripts/bootstrap requirements-learning.txt``).
 """
 
 from __future__ import annotations
@@ -101,8 +101,13 @@ def main(argv: list[str] | None = None) -> int:
     progress = Progress(args.timesteps, every=every)
 
     def evaluate(steps: int) -> None:
-        rate = success_rate(export(model, args, env, time.monotonic() - started, curve),
-                            args.eval_episodes, CURVE_SEED, args.env)
+        actor = export(model, args, env, time.monotonic() - started, curve)
+        rate = success_rate(actor, args.eval_episodes, CURVE_SEED, args.env)
+        if not curve or rate > max(point[1] for point in curve):
+            # DDPG's success can collapse and recover from one point to the next: the best
+            # point's actor is kept too.
+            actor.meta['best_of_curve'] = {'steps': steps, 'success': rate}
+            actor.save(out / 'best')
         curve.append((steps, rate, time.monotonic() - started))
         if progress.tty:
             progress.stream.write('\n')

@@ -50,6 +50,7 @@ def test_train_save_load_evaluate(tmp_path):
     assert {'actor.npz', 'policy.json', 'model.zip', 'learning_curve.png'} <= {
         p.name for p in out.iterdir()}
     assert (out / 'learning_curve.png').read_bytes().startswith(b'\x89PNG')
+    assert Actor.load(out / 'best').meta['best_of_curve']['steps'] == STEPS  # one curve point
 
     actor = Actor.load(out)
     assert actor.env_id == REACH_ID and actor.meta['timesteps'] == STEPS

@@ -199,7 +199,7 @@ def plot_curve(curve: list[tuple[int, float, float]], title: str, path: Path) ->
     axes.set_ylabel('success rate')
     axes.set_ylim(-0.02, 1.02)
     axes.grid(alpha=0.3)
-    axes.set_title(f'{title}: {seconds[-1] / 60:.1f} min of training')
+    axes.set_title(f'{title}: {seconds[-1] / 60:.1f} min of training', fontsize=10)
     figure.tight_layout()
     write_atomically(path, lambda f: figure.savefig(f, format='png'))
     pyplot.close(figure)

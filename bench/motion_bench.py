@@ -29,12 +29,12 @@ import numpy as np
 from rcl_interfaces.srv import SetParameters
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 from ur_rg2_motion.kinematics import ArmKinematics, Box, KinematicsError
 from ur_rg2_motion.planning import gripper_down
+from ur_rg2_sim.contract import LATCHED_QOS
 from ur_rg2_sim.robot_model import write_robot_urdf
 from ur_rg2_sim.tf_buffer import FrameLookupError, TransformBuffer, quaternion_from_matrix
 from ur_rg2_sim.world import PEDESTAL_HEIGHT
@@ -56,8 +56,6 @@ START_TIMEOUT_S = 120.0
 CALL_TIMEOUT_S = 60.0
 BALL_RADIUS = 0.03  # m, the sim's default
 MOVED_RAD = 1e-4  # a joint change larger than any jitter at rest
-LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 def ik_solve_times(model: str = 'ur5') -> tuple[list[float], int]:
@@ -109,7 +107,7 @@ class _Probe:
         self.sim_time = 0.0  # s, the latest joint_states stamp
         self.truth: PoseStamped | None = None
         self.seen = 0
-        node.create_subscription(TFMessage, '/tf_static', self.tree.add_message, LATCHED)
+        node.create_subscription(TFMessage, '/tf_static', self.tree.add_message, LATCHED_QOS)
         node.create_subscription(TFMessage, '/tf', self.tree.add_message, 100)
         node.create_subscription(JointState, 'joint_states', self._on_state, 100)
         node.create_subscription(PoseStamped, 'ball/true_pose', self._on_truth, 10)

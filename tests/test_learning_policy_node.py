@@ -12,18 +12,16 @@ from geometry_msgs.msg import PointStamped
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 from ur_rg2_learning.actor import PolicyError
 from ur_rg2_learning.envs import REACH_TOLERANCE
 from ur_rg2_learning.policy_node import PolicyNode
+from ur_rg2_sim.contract import LATCHED_QOS
 from ur_rg2_sim.tf_buffer import TransformBuffer
 
 TIMEOUT = 60.0  # s of wall time on a loaded 2-core machine
-LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
 BALL = (0.45, -0.25, 0.03)  # world, on the floor
 RADIUS = 0.03
 
@@ -34,7 +32,7 @@ def test_policy_run_drives_the_tcp_to_the_ball(ros_graph):
     policy = ros_graph.add(PolicyNode(context=ros_graph.context))
     probe = ros_graph.node('probe')
     tree = TransformBuffer()
-    probe.create_subscription(TFMessage, '/tf_static', tree.add_message, LATCHED)
+    probe.create_subscription(TFMessage, '/tf_static', tree.add_message, LATCHED_QOS)
     probe.create_subscription(TFMessage, '/tf', tree.add_message, 100)
     lock = threading.Lock()
     driving: list[bool] = []
@@ -43,7 +41,7 @@ def test_policy_run_drives_the_tcp_to_the_ball(ros_graph):
         with lock:
             driving.append(message.data)
 
-    probe.create_subscription(Bool, 'policy/driving', on_driving, LATCHED)
+    probe.create_subscription(Bool, 'policy/driving', on_driving, LATCHED_QOS)
     ball = probe.create_publisher(PointStamped, 'ball/position', 10)
     run = probe.create_client(Trigger, 'policy/run')
     wait_for(run.service_is_ready, TIMEOUT, 'the policy/run service')

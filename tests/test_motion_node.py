@@ -15,7 +15,6 @@ from geometry_msgs.msg import PointStamped, PoseStamped, TransformStamped
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
@@ -23,12 +22,11 @@ from tf2_msgs.msg import TFMessage
 from ur_rg2_motion.kinematics import rotation_angle
 from ur_rg2_motion.motion_node import MotionNode
 from ur_rg2_motion.planning import gripper_down
+from ur_rg2_sim.contract import LATCHED_QOS
 from ur_rg2_sim.tf_buffer import TransformBuffer, pose_matrix, quaternion_from_matrix
 
 WARNING = re.compile(r'\[WARN\] \[[\d.]+\] \[ur_rg2_motion\]: (.*)')
 TIMEOUT = 60.0  # s of wall time for a move on a loaded 2-core machine
-LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
 POSITION_TOLERANCE = 0.003  # m, the issue's
 ANGLE_TOLERANCE = math.radians(1.0)
 # The arm is still when no joint moved more than this over STILL_STATES joint states.
@@ -52,11 +50,11 @@ class Rig:
         self.tree = TransformBuffer()
         self.states: list[np.ndarray] = []
         self.results: list[str] = []
-        node.create_subscription(TFMessage, '/tf_static', self.tree.add_message, LATCHED)
+        node.create_subscription(TFMessage, '/tf_static', self.tree.add_message, LATCHED_QOS)
         node.create_subscription(TFMessage, '/tf', self.tree.add_message, 100)
         node.create_subscription(JointState, 'joint_states', self._on_state, 100)
         node.create_subscription(String, 'pick_ball/result',
-                                 lambda msg: self.results.append(msg.data), LATCHED)
+                                 lambda msg: self.results.append(msg.data), LATCHED_QOS)
         self.command = node.create_publisher(PoseStamped, 'tool_command', 10)
         self.jog = node.create_publisher(TransformStamped, 'tool_jog', 10)
         self.ball = node.create_publisher(PointStamped, 'ball/position', 10)

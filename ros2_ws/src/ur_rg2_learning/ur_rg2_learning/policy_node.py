@@ -27,13 +27,7 @@ from geometry_msgs.msg import PointStamped
 import numpy as np
 from rclpy.action import ActionClient
 from rclpy.node import Node
-from rclpy.qos import (
-    DurabilityPolicy,
-    HistoryPolicy,
-    QoSProfile,
-    ReliabilityPolicy,
-    qos_profile_sensor_data,
-)
+from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, String
 from std_srvs.srv import Trigger
@@ -46,6 +40,7 @@ from ur_rg2_motion.kinematics import (
     urdf_velocity_limits,
 )
 from ur_rg2_motion.planning import plan_joint_move
+from ur_rg2_sim.contract import LATCHED_QOS, TF_QOS, TRAJECTORY_ACTION, WORLD_FRAME
 from ur_rg2_sim.parameters import ParameterSpec, declare_parameters
 from ur_rg2_sim.robot_model import ARM_JOINTS
 from ur_rg2_sim.spin import run_node
@@ -66,13 +61,6 @@ from ur_rg2_learning.envs import (
 )
 
 NODE_NAME = 'ur_rg2_policy'
-TRAJECTORY_ACTION = 'joint_trajectory_controller/follow_joint_trajectory'
-WORLD_FRAME = 'world'
-LATCHED_QOS = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL,
-                         reliability=ReliabilityPolicy.RELIABLE)
-TF_QOS = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST,
-                    reliability=ReliabilityPolicy.RELIABLE)
 _START_SPEED_SCALE = 0.4  # share of the joints' velocity limits for the move to the start
 _START_TIMEOUT = 30.0  # s for the start move beyond its duration
 _STEP_TIMEOUT = 10.0  # s for one step's goal to be answered and done

@@ -21,18 +21,19 @@ import numpy as np
 from rclpy.action import ActionClient
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
-from rclpy.qos import (
-    DurabilityPolicy,
-    HistoryPolicy,
-    QoSProfile,
-    ReliabilityPolicy,
-    qos_profile_sensor_data,
-)
+from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 from trajectory_msgs.msg import JointTrajectoryPoint
+from ur_rg2_sim.contract import (
+    GRIPPER_ACTION,
+    LATCHED_QOS,
+    TF_QOS,
+    TRAJECTORY_ACTION,
+    WORLD_FRAME,
+)
 from ur_rg2_sim.parameters import ParameterSpec, declare_parameters
 from ur_rg2_sim.robot_model import ARM_JOINTS
 from ur_rg2_sim.spin import run_node
@@ -59,16 +60,8 @@ from ur_rg2_motion.planning import (
 )
 
 NODE_NAME = 'ur_rg2_motion'
-TRAJECTORY_ACTION = 'joint_trajectory_controller/follow_joint_trajectory'
-GRIPPER_ACTION = 'gripper_controller/gripper_cmd'
-WORLD_FRAME = 'world'
 RG2_MAX_OPENING = 0.110  # m, the gripper_cmd range
 RG2_MAX_EFFORT = 40.0  # N
-LATCHED_QOS = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL,
-                         reliability=ReliabilityPolicy.RELIABLE)
-TF_QOS = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST,
-                    reliability=ReliabilityPolicy.RELIABLE)
 # A quaternion this close to unit length is a client's rounding: normalised without a word.
 QUATERNION_NORM_TOLERANCE = 1e-3
 # How long the pick waits for an action server to answer a goal, and beyond its duration.

@@ -20,6 +20,7 @@ from rclpy.action.server import ServerGoalHandle
 from rclpy.node import Node
 from rclpy.task import Task
 
+from ur_rg2_sim.contract import GRIPPER_ACTION, TRAJECTORY_ACTION
 from ur_rg2_sim.drivers import ArmDriver, ArmRun, Ended, GripperDriver, GripperRun
 from ur_rg2_sim.robot_model import ARM_JOINTS
 from ur_rg2_sim.simulation import NS, SimulationLoop
@@ -27,8 +28,6 @@ from ur_rg2_sim.trajectory import INVALID_GOAL, INVALID_JOINTS, Point, Tolerance
 from ur_rg2_sim.trajectory import validate as validate_trajectory
 from ur_rg2_sim.world import SimWorld
 
-TRAJECTORY_ACTION = 'joint_trajectory_controller/follow_joint_trajectory'
-GRIPPER_ACTION = 'gripper_controller/gripper_cmd'
 FEEDBACK_PERIOD = 0.05  # s of wall time: 20 Hz, twice the contract's minimum
 # How long a worker waits for the simulation thread to take a goal (it takes one step).
 _SIM_ANSWER_TIMEOUT = 10.0  # s

@@ -11,19 +11,12 @@ from collections.abc import Sequence
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import PoseStamped, TransformStamped
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import String
 from tf2_msgs.msg import TFMessage
 
-from ur_rg2_sim.frames import WORLD_FRAME, FrameTree, camera_transforms
+from ur_rg2_sim.contract import LATCHED_QOS, TF_QOS, WORLD_FRAME
+from ur_rg2_sim.frames import FrameTree, camera_transforms
 from ur_rg2_sim.serialized import SerializedMessage
-
-# As tf2_ros's broadcasters and robot_state_publisher: late joiners get the latest message.
-LATCHED_QOS = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL,
-                         reliability=ReliabilityPolicy.RELIABLE)
-TF_QOS = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST,
-                    reliability=ReliabilityPolicy.RELIABLE)
 
 
 class FramePublisher:

@@ -25,6 +25,7 @@ import numpy as np
 import pybullet
 
 from ur_rg2_sim.camera_pose import optical_rotation
+from ur_rg2_sim.contract import WORLD_FRAME
 from ur_rg2_sim.tf_buffer import quaternion_from_matrix
 
 Vector = tuple[float, float, float]
@@ -33,7 +34,6 @@ Transform = tuple[Vector, Quaternion]
 # (parent frame, child frame, translation, rotation)
 FrameTransform = tuple[str, str, Vector, Quaternion]
 
-WORLD_FRAME = 'world'
 CAMERA_FRAME = 'camera_link'
 OPTICAL_FRAME = 'camera_color_optical_frame'
 IDENTITY: Transform = ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0))

@@ -24,12 +24,13 @@ from rcl_interfaces.srv import GetParameters
 from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 from rclpy.parameter import parameter_value_to_python
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.task import Future
 from sensor_msgs.msg import Image, JointState
 from std_msgs.msg import Bool, String
 from tf2_msgs.msg import TFMessage
 from ur_rg2_sim.camera_pose import optical_rotation
+from ur_rg2_sim.contract import LATCHED_QOS, WORLD_FRAME
 from ur_rg2_sim.parameters import ParameterSpec, declare_parameters
 from ur_rg2_sim.spin import run_node
 from ur_rg2_sim.tf_buffer import FrameLookupError, TransformBuffer, transform_point
@@ -42,12 +43,7 @@ SIM_NODE = 'ur_rg2_sim'
 # The frame of the sim's colour images, the one its camera pose parameters describe.
 CAMERA_FRAME = 'camera_color_optical_frame'
 _POSE_PARAMETERS = ('camera_position', 'camera_look_at')
-WORLD_FRAME = 'world'
 BASE_FRAME = 'base_link'
-# /tf_static, the motion node's pick result and the policy node's state: latched, the last one
-# arrives on subscribing.
-_LATCHED_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
 _POSE_PERIOD_S = 2.0  # how often the sim is asked for its camera pose
 _POSE_ANSWER_S = 10.0  # a question unanswered after this long is given up
 
@@ -102,9 +98,9 @@ class ViewerNode(Node):
         self.create_subscription(PointStamped, 'ball/position', self._on_ball, 10)
         # The camera and base_link are fixed in the world: /tf_static has all the ball needs.
         self._tree = TransformBuffer()
-        self.create_subscription(TFMessage, '/tf_static', self._tree.add_message, _LATCHED_QOS)
-        self.create_subscription(String, 'pick_ball/result', self._on_pick_result, _LATCHED_QOS)
-        self.create_subscription(Bool, 'policy/driving', self._on_policy_driving, _LATCHED_QOS)
+        self.create_subscription(TFMessage, '/tf_static', self._tree.add_message, LATCHED_QOS)
+        self.create_subscription(String, 'pick_ball/result', self._on_pick_result, LATCHED_QOS)
+        self.create_subscription(Bool, 'policy/driving', self._on_policy_driving, LATCHED_QOS)
         self._to_world: Callable[[Sequence[float]], np.ndarray] | None = None
         self._pose_client = self.create_client(GetParameters, f'{SIM_NODE}/get_parameters')
         self._pose_question: tuple[Future, float] | None = None

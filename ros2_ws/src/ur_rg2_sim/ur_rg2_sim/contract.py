@@ -1,0 +1,20 @@
+"""Names and QoS profiles of the sim's public interface that its clients share.
+
+The sim serves these and the motion, policy and viewer nodes (and the tests and benchmarks)
+use them; ``../shared/INTERFACES.md`` is where they are defined. Only rclpy, so any client
+can import this without loading the simulation.
+"""
+
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+WORLD_FRAME = 'world'
+TRAJECTORY_ACTION = 'joint_trajectory_controller/follow_joint_trajectory'
+GRIPPER_ACTION = 'gripper_controller/gripper_cmd'
+
+# As tf2_ros's broadcasters and robot_state_publisher: late joiners get the latest message
+# (/tf_static, robot_description, and the latched results of the motion and policy nodes).
+LATCHED_QOS = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                         reliability=ReliabilityPolicy.RELIABLE)
+TF_QOS = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST,
+                    reliability=ReliabilityPolicy.RELIABLE)

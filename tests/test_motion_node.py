@@ -65,6 +65,7 @@ class Rig:
         wait_for(lambda: self.motion._trajectory.server_is_ready(), TIMEOUT,
                  'the trajectory action server')
         wait_for(self._tree_ready, TIMEOUT, 'the transform tree')
+        wait_for(self._motion_tree_ready, TIMEOUT, "the motion node's transform tree")
 
     def _on_state(self, msg: JointState) -> None:
         with self._lock:
@@ -75,6 +76,13 @@ class Rig:
         try:
             self.tree.lookup('base_link', 'rg2_tcp')
             self.tree.lookup('base_link', 'camera_color_optical_frame')
+            return True
+        except LookupError:
+            return False
+
+    def _motion_tree_ready(self) -> bool:
+        try:
+            self.motion._tf.lookup('world', 'base_link')
             return True
         except LookupError:
             return False

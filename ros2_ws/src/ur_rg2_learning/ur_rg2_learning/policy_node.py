@@ -39,12 +39,13 @@ from ur_rg2_motion.kinematics import (
     KinematicsError,
     urdf_velocity_limits,
 )
+from ur_rg2_motion.motion_node import ball_in_base_link
 from ur_rg2_motion.planning import plan_joint_move
 from ur_rg2_sim.contract import LATCHED_QOS, TF_QOS, TRAJECTORY_ACTION, WORLD_FRAME
 from ur_rg2_sim.parameters import ParameterSpec, declare_parameters
 from ur_rg2_sim.robot_model import ARM_JOINTS
 from ur_rg2_sim.spin import run_node
-from ur_rg2_sim.tf_buffer import FrameLookupError, TransformBuffer, transform_point
+from ur_rg2_sim.tf_buffer import FrameLookupError, TransformBuffer
 
 from ur_rg2_learning import EPISODE_STEPS, REACH_ID
 from ur_rg2_learning.actor import Actor, PolicyError
@@ -157,18 +158,7 @@ class PolicyNode(Node):
         """Return the ball's top in base_link from the latest ball/position (ValueError)."""
         with self._lock:
             ball = self._ball
-        timeout = self.get_parameter('ball_timeout').value
-        if ball is None or time.monotonic() - ball[0] > timeout:
-            raise ValueError(f"no ball seen in the last {timeout:g} s (is it in the camera's "
-                             'view, and is the vision node running?)')
-        point = ball[1]
-        try:
-            to_base = self._tf.lookup(BASE_LINK, point.header.frame_id)
-        except FrameLookupError as error:
-            raise ValueError(f'the ball cannot be placed in {BASE_LINK}: {error}') from None
-        centre = transform_point(to_base, (point.point.x, point.point.y, point.point.z))
-        if not np.isfinite(centre).all():
-            raise ValueError('the ball position is not finite')
+        centre = ball_in_base_link(self._tf, ball, self.get_parameter('ball_timeout').value)
         return centre + (0.0, 0.0, self.get_parameter('ball_radius').value)
 
     # -- the episode ----------------------------------------------------------------------------

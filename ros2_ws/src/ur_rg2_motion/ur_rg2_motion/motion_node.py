@@ -346,16 +346,10 @@ class MotionNode(Node):
     def _ball_in_base_link(self) -> np.ndarray:
         with self._lock:
             ball = self._ball
-        timeout = self.get_parameter('ball_timeout').value
-        if ball is None or time.monotonic() - ball[0] > timeout:
-            raise PickError(f"no ball seen in the last {timeout:g} s (is it in the camera's "
-                             'view, and is the vision node running?)')
-        point = ball[1]
         try:
-            to_base = self._tf.lookup(BASE_LINK, point.header.frame_id)
-        except FrameLookupError as error:
-            raise PickError(f'the ball cannot be placed in {BASE_LINK}: {error}') from None
-        return transform_point(to_base, (point.point.x, point.point.y, point.point.z))
+            return ball_in_base_link(self._tf, ball, self.get_parameter('ball_timeout').value)
+        except ValueError as error:
+            raise PickError(str(error)) from None
 
     def _pick(self, ball: np.ndarray) -> float:
         """Pick the ball at ``ball`` (base_link); return the opening it is held at."""
@@ -480,6 +474,28 @@ class MotionNode(Node):
                 handle.cancel_goal_async()
             raise PickError(f'{what}: no answer from the controller within {timeout:.0f} s')
         return future.result()
+
+
+def ball_in_base_link(tree: TransformBuffer, ball: tuple[float, PointStamped] | None,
+                      timeout: float) -> np.ndarray:
+    """Return the ball's centre in base_link from the latest ``ball/position``.
+
+    ``ball`` is (time.monotonic() when it came, the message), or None before the first.
+    Raises ValueError saying why when it is older than ``timeout`` s, missing, not finite or
+    in a frame the tree cannot place.
+    """
+    if ball is None or time.monotonic() - ball[0] > timeout:
+        raise ValueError(f"no ball seen in the last {timeout:g} s (is it in the camera's "
+                         'view, and is the vision node running?)')
+    point = ball[1]
+    try:
+        to_base = tree.lookup(BASE_LINK, point.header.frame_id)
+    except FrameLookupError as error:
+        raise ValueError(f'the ball cannot be placed in {BASE_LINK}: {error}') from None
+    centre = transform_point(to_base, (point.point.x, point.point.y, point.point.z))
+    if not np.isfinite(centre).all():
+        raise ValueError('the ball position is not finite')
+    return centre
 
 
 # -- messages ------------------------------------------------------------------------------------

@@ -23,7 +23,12 @@ from typing import Any
 import gymnasium as gym
 from gymnasium import spaces
 import numpy as np
-from ur_rg2_motion.kinematics import ArmKinematics, Box, KinematicsError
+from ur_rg2_motion.kinematics import (
+    FLOOR_CLEARANCE,
+    ArmKinematics,
+    KinematicsError,
+    arm_on_pedestal,
+)
 from ur_rg2_motion.planning import PICK_POSTURE, gripper_down
 from ur_rg2_sim.robot_model import ARM_JOINTS
 from ur_rg2_sim.world import SimWorld, WorldConfig
@@ -45,20 +50,10 @@ START_JITTER = 0.05
 # TCP targets stay in this box (base_link); below it the fingers would touch the floor.
 TARGET_LOW = (-0.8, -0.8, None)
 TARGET_HIGH = (0.8, 0.8, 0.4)
-FLOOR_CLEARANCE = 0.005  # m: the motion node's default floor_clearance
-PEDESTAL_HALF_WIDTH = 0.11  # m: the motion node's default pedestal_half_width
 OBSERVATION_BOUND = 10.0  # m, m/s
 
 
 _DOWN = gripper_down((0.0, 0.0, 0.0), 0.0)
-
-
-def arm_kinematics(urdf: str, pedestal_height: float) -> ArmKinematics:
-    """Return the arm's kinematics with the floor and pedestal checks the motion node uses."""
-    half = PEDESTAL_HALF_WIDTH
-    return ArmKinematics.from_urdf(
-        urdf, floor_z=-pedestal_height, clearance=FLOOR_CLEARANCE,
-        keep_out=[Box((-half, -half, -pedestal_height - 1.0), (half, half, 0.0))])
 
 
 def target_bounds(arm: ArmKinematics) -> tuple[np.ndarray, np.ndarray]:
@@ -102,7 +97,7 @@ class UrRg2Env(gym.Env):
                                           physics_rate=CONTROL_RATE * self.substeps))
         height = self.world.pedestal_height
         self._base = np.array([0.0, 0.0, height])  # base_link in the world frame
-        self.arm = arm_kinematics(self.world.urdf.read_text(), height)
+        self.arm = arm_on_pedestal(self.world.urdf.read_text(), height)
         self._low, self._high = target_bounds(self.arm)
         observation, goal = self._sizes()
         self.observation_space = spaces.Dict({

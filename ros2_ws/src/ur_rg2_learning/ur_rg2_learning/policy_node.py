@@ -37,6 +37,7 @@ from ur_rg2_motion.kinematics import (
     BASE_LINK,
     ArmKinematics,
     KinematicsError,
+    arm_on_pedestal,
     urdf_velocity_limits,
 )
 from ur_rg2_motion.motion_node import ball_in_base_link
@@ -55,7 +56,6 @@ from ur_rg2_learning.envs import (
     MAX_STEP,
     REACH_TOLERANCE,
     START_TCP,
-    arm_kinematics,
     start_joints,
     target_bounds,
     tcp_pose,
@@ -149,7 +149,7 @@ class PolicyNode(Node):
             height = float(self._tf.lookup(WORLD_FRAME, BASE_LINK)[2, 3])
         except FrameLookupError as error:
             raise KinematicsError('invalid', f'no floor known yet: {error}') from None
-        arm = arm_kinematics(self._robot, height)
+        arm = arm_on_pedestal(self._robot, height)
         with self._lock:
             self._arm = arm
         return arm

@@ -25,6 +25,9 @@ import numpy as np
 from ur_rg2_sim.robot_model import ARM_JOINTS
 
 BASE_LINK = 'base_link'
+# Defaults of the checks against the sim's floor and pedestal (the motion node's parameters).
+FLOOR_CLEARANCE = 0.005  # m that the TCP, finger tips, wrist and elbow keep above the floor
+PEDESTAL_HALF_WIDTH = 0.11  # m, half the width of the column under base_link
 DH_BASE = 'base'
 FLANGE = 'tool0'
 TCP = 'rg2_tcp'
@@ -449,3 +452,19 @@ def _rpy_matrix(xyz: Sequence[float], roll: float, pitch: float, yaw: float) -> 
     ]
     m[:3, 3] = xyz
     return m
+
+
+def arm_on_pedestal(urdf: str, pedestal_height: float,
+                    pedestal_half_width: float = PEDESTAL_HALF_WIDTH,
+                    clearance: float = FLOOR_CLEARANCE) -> ArmKinematics:
+    """Return the arm of robot description text ``urdf`` with the sim's floor and pedestal.
+
+    ``pedestal_height``: base_link above the floor, m (inf: no floor known); the pedestal is
+    a square column of ``pedestal_half_width`` under base_link (0: none).
+    """
+    keep_out = [Box((-pedestal_half_width, -pedestal_half_width, -pedestal_height - 1.0),
+                    (pedestal_half_width, pedestal_half_width, 0.0))] if (
+        pedestal_half_width > 0 and math.isfinite(pedestal_height) and pedestal_height > 0
+    ) else []
+    return ArmKinematics.from_urdf(urdf, floor_z=-pedestal_height, clearance=clearance,
+                                   keep_out=keep_out)

@@ -46,9 +46,11 @@ from ur_rg2_sim.tf_buffer import (
 
 from ur_rg2_motion.kinematics import (
     BASE_LINK,
+    FLOOR_CLEARANCE,
+    PEDESTAL_HALF_WIDTH,
     ArmKinematics,
-    Box,
     KinematicsError,
+    arm_on_pedestal,
     urdf_velocity_limits,
 )
 from ur_rg2_motion.planning import (
@@ -89,10 +91,11 @@ _PARAMETERS = (
                   bounds=(0.01, 0.5)),
     ParameterSpec('ball_timeout', 1.0, 'pick_ball uses a ball/position received at most this '
                   'long ago, s', bounds=(0.05, 60.0)),
-    ParameterSpec('floor_clearance', 0.005, 'Height above the floor that the TCP, finger tips, '
-                  'wrist and elbow keep, m', bounds=(0.0, 0.2)),
-    ParameterSpec('pedestal_half_width', 0.11, 'Half the width of the pedestal under base_link '
-                  '(floor to base_link), kept out of, m; 0: none', bounds=(0.0, 1.0)),
+    ParameterSpec('floor_clearance', FLOOR_CLEARANCE, 'Height above the floor that the TCP, '
+                  'finger tips, wrist and elbow keep, m', bounds=(0.0, 0.2)),
+    ParameterSpec('pedestal_half_width', PEDESTAL_HALF_WIDTH, 'Half the width of the pedestal '
+                  'under base_link (floor to base_link), kept out of, m; 0: none',
+                  bounds=(0.0, 1.0)),
     ParameterSpec('grasp_tolerance', 0.02, "A gripper stopped within this of the ball's "
                   'diameter holds the ball, m', bounds=(0.001, 0.05)),
 )
@@ -205,10 +208,7 @@ class MotionNode(Node):
         with self._lock:
             if self._arm is not None and self._arm_key == key:
                 return self._arm
-        keep_out = [Box((-half, -half, -height - 1.0), (half, half, 0.0))] if (
-            half > 0 and math.isfinite(height) and height > 0) else []
-        arm = ArmKinematics.from_urdf(urdf, floor_z=-height, clearance=clearance,
-                                      keep_out=keep_out)
+        arm = arm_on_pedestal(urdf, height, half, clearance)
         limits = urdf_velocity_limits(urdf)
         with self._lock:
             self._arm, self._arm_key, self._velocity_limits = arm, key, limits

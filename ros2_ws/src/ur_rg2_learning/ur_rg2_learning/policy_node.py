@@ -21,7 +21,6 @@ import sys
 import threading
 import time
 
-from builtin_interfaces.msg import Duration
 from control_msgs.action import FollowJointTrajectory
 from geometry_msgs.msg import PointStamped
 import numpy as np
@@ -32,7 +31,6 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, String
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
-from trajectory_msgs.msg import JointTrajectoryPoint
 from ur_rg2_motion.kinematics import (
     BASE_LINK,
     ArmKinematics,
@@ -40,7 +38,7 @@ from ur_rg2_motion.kinematics import (
     arm_on_pedestal,
     urdf_velocity_limits,
 )
-from ur_rg2_motion.motion_node import ball_in_base_link
+from ur_rg2_motion.motion_node import ball_in_base_link, trajectory_goal
 from ur_rg2_motion.planning import plan_joint_move
 from ur_rg2_sim.contract import LATCHED_QOS, TF_QOS, TRAJECTORY_ACTION, WORLD_FRAME
 from ur_rg2_sim.parameters import ParameterSpec, declare_parameters
@@ -266,14 +264,7 @@ class PolicyNode(Node):
             self._end(episode, f'no answer from {TRAJECTORY_ACTION} in time')
 
     def _send(self, times, positions):
-        goal = FollowJointTrajectory.Goal()
-        goal.trajectory.joint_names = list(ARM_JOINTS)
-        for t, point in zip(times, positions):
-            ns = round(float(t) * 1e9)
-            goal.trajectory.points.append(JointTrajectoryPoint(
-                positions=[float(p) for p in point],
-                time_from_start=Duration(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)))
-        return self._trajectory.send_goal_async(goal)
+        return self._trajectory.send_goal_async(trajectory_goal(times, positions))
 
     def _end(self, episode: dict, outcome: str, reached: bool = False) -> None:
         with self._lock:

@@ -7,7 +7,7 @@ through that action and the RG2 through ``gripper_controller/gripper_cmd``. The 
 from ``robot_description``, the frames from ``/tf_static`` and ``/tf``.
 """
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 import math
 import sys
 import threading
@@ -277,7 +277,8 @@ class MotionNode(Node):
             self._cancel_pick(source)
             with self._lock:
                 self._tool_target = target
-            future = self._trajectory.send_goal_async(_trajectory_goal(trajectory))
+            future = self._trajectory.send_goal_async(
+                trajectory_goal(trajectory.times, trajectory.positions))
         future.add_done_callback(lambda done: self._on_tool_goal(done, target, source))
 
     def _on_tool_goal(self, future, target: np.ndarray, source: str) -> None:
@@ -436,7 +437,8 @@ class MotionNode(Node):
     def _run_trajectory(self, trajectory: Trajectory, what: str) -> None:
         with self._send_lock:
             self._check_cancel()
-            future = self._trajectory.send_goal_async(_trajectory_goal(trajectory))
+            future = self._trajectory.send_goal_async(
+                trajectory_goal(trajectory.times, trajectory.positions))
         handle = self._wait(future, _GOAL_ANSWER_TIMEOUT, what)
         if not handle.accepted:
             raise PickError(f'{what}: the trajectory controller refused the move')
@@ -542,13 +544,15 @@ def _limit_tcp_speed(trajectory: Trajectory, arm: ArmKinematics, start: np.ndarr
                       trajectory.straight)
 
 
-def _trajectory_goal(trajectory: Trajectory) -> FollowJointTrajectory.Goal:
+def trajectory_goal(times: Sequence[float], positions: Sequence[Sequence[float]]
+                    ) -> FollowJointTrajectory.Goal:
+    """Return the goal of the six arm joints at ``positions`` (rad) ``times`` s from now."""
     goal = FollowJointTrajectory.Goal()
     goal.trajectory.joint_names = list(ARM_JOINTS)
-    for t, positions in zip(trajectory.times, trajectory.positions):
+    for t, point in zip(times, positions):
         ns = round(float(t) * 1e9)
         goal.trajectory.points.append(JointTrajectoryPoint(
-            positions=positions.tolist(),
+            positions=[float(p) for p in point],
             time_from_start=Duration(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)))
     return goal
 

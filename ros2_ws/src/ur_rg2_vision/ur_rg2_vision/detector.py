@@ -46,6 +46,15 @@ _BULGE_TOLS = 3.0
 _MAX_BULGE_RATIO = 0.08  # bulge points per on-circle point
 _MIN_COVERAGE = 0.4  # fraction of the circumference seen
 _COVERAGE_BINS = 36
+# Where each RANSAC triple lies on its run: its quantile among all points (which run), and
+# its start and spacing as fractions of the run. Fixed: the same frame gives the same answer.
+_HYPOTHESIS_QUANTILES = (np.arange(_RANSAC_HYPOTHESES) + 0.5) / _RANSAC_HYPOTHESES
+_HYPOTHESIS_STARTS, _HYPOTHESIS_GAPS = np.random.default_rng(0).random((2, _RANSAC_HYPOTHESES))
+_TRIPLE = np.arange(3)
+_UNIT_CIRCLE = np.column_stack([np.cos(np.linspace(0, 2 * math.pi, 64, endpoint=False)),
+                                np.sin(np.linspace(0, 2 * math.pi, 64, endpoint=False))])
+_SUBPIXEL_BITS = 4  # the ball's outline is drawn to 1/16 pixel
+_SUBPIXEL = 1 << _SUBPIXEL_BITS
 
 
 @dataclass(frozen=True)
@@ -69,12 +78,16 @@ class HsvRange:
 
     def mask(self, rgb: np.ndarray) -> np.ndarray:
         """Return a uint8 mask (255 = in range) of an RGB uint8 image."""
-        hsv = cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV)
+        return self.hsv_mask(cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV))
+
+    def hsv_mask(self, hsv: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """Return the mask of an HSV image (OpenCV's 8-bit scale), into ``out`` if given."""
         (h_lo, s_lo, v_lo), (h_hi, s_hi, v_hi) = self.lower, self.upper
         if h_lo <= h_hi:
-            return cv2.inRange(hsv, (h_lo, s_lo, v_lo), (h_hi, s_hi, v_hi))
-        return cv2.bitwise_or(cv2.inRange(hsv, (h_lo, s_lo, v_lo), (HUE_MAX, s_hi, v_hi)),
-                              cv2.inRange(hsv, (0, s_lo, v_lo), (h_hi, s_hi, v_hi)))
+            return cv2.inRange(hsv, (h_lo, s_lo, v_lo), (h_hi, s_hi, v_hi), dst=out)
+        out = cv2.inRange(hsv, (h_lo, s_lo, v_lo), (HUE_MAX, s_hi, v_hi), dst=out)
+        return cv2.bitwise_or(out, cv2.inRange(hsv, (0, s_lo, v_lo), (h_hi, s_hi, v_hi)),
+                              dst=out)
 
 
 # The sim's default ball, RGBA (1, 0, 0, 1): pure red, darker on its shaded side.
@@ -109,6 +122,19 @@ class BallDetector:
             raise ValueError(f'min_radius_px must be positive, got {min_radius_px}')
         self.color = color
         self.min_radius_px = float(min_radius_px)
+        # The coarse stage's images, reused: fresh ones of this size cost new pages per frame.
+        self._small = self._hsv = self._coarse = None
+
+    def _coarse_mask(self, rgb: np.ndarray) -> np.ndarray:
+        """Return the colour mask of every second pixel of every second row."""
+        height, width = rgb.shape[0] // _COARSE_SCALE, rgb.shape[1] // _COARSE_SCALE
+        if self._small is None or self._small.shape[:2] != (height, width):
+            self._small = np.empty((height, width, 3), np.uint8)
+            self._hsv = np.empty_like(self._small)
+            self._coarse = np.empty((height, width), np.uint8)
+        cv2.resize(rgb, (width, height), dst=self._small, interpolation=cv2.INTER_NEAREST)
+        cv2.cvtColor(self._small, cv2.COLOR_RGB2HSV, dst=self._hsv)
+        return self.color.hsv_mask(self._hsv, self._coarse)
 
     def detect(self, rgb: np.ndarray, k: np.ndarray | None = None) -> list[Detection]:
         """Return the balls in an RGB uint8 image, the most completely seen first.
@@ -118,9 +144,7 @@ class BallDetector:
         if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
             raise ValueError(f'expected an RGB uint8 image, got {rgb.dtype} {rgb.shape}')
         height, width = rgb.shape[:2]
-        small = cv2.resize(rgb, (width // _COARSE_SCALE, height // _COARSE_SCALE),
-                           interpolation=cv2.INTER_NEAREST)
-        coarse = self.color.mask(small)
+        coarse = self._coarse_mask(rgb)
         outlines, _ = cv2.findContours(coarse, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
         # Blobs by bounding box, largest first; specks far below the smallest ball are noise.
         min_area = max(3.0, 0.25 * math.pi * (self.min_radius_px / _COARSE_SCALE) ** 2)
@@ -134,12 +158,16 @@ class BallDetector:
             if any(math.hypot(cu - d.u, cv_ - d.v) < d.radius for _, d in found):
                 continue
             # Window: the blob, grown by its size to take in the rest of a ball cut in two by
-            # an occluder (a gripper finger in front of its middle).
-            grow = (max(w, h) + 2) * _COARSE_SCALE
-            x0 = max(0, x * _COARSE_SCALE - grow)
-            y0 = max(0, y * _COARSE_SCALE - grow)
-            x1 = min(width, (x + w) * _COARSE_SCALE + grow)
-            y1 = min(height, (y + h) * _COARSE_SCALE + grow)
+            # an occluder (a gripper finger in front of its middle), then shrunk to the blobs
+            # in it, with a margin of a coarse pixel to their full-resolution edges.
+            grow = max(w, h) + 2
+            left, top = max(0, x - grow), max(0, y - grow)
+            near = coarse[top:y + h + grow, left:x + w + grow]
+            bx, by, bw, bh = cv2.boundingRect(near)
+            x0 = max(0, (left + bx - 1) * _COARSE_SCALE)
+            y0 = max(0, (top + by - 1) * _COARSE_SCALE)
+            x1 = min(width, (left + bx + bw + 1) * _COARSE_SCALE)
+            y1 = min(height, (top + by + bh + 1) * _COARSE_SCALE)
             result = self._refine(rgb, k, x0, y0, x1, y1)
             if result is not None and not any(
                     math.hypot(result[1].u - d.u, result[1].v - d.v) < d.radius
@@ -153,99 +181,142 @@ class BallDetector:
         """Fit a circle to the blobs in one window; return (on-circle points, detection)."""
         height, width = rgb.shape[:2]
         mask = self.color.mask(rgb[y0:y1, x0:x1])
-        contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+        contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE,
+                                       offset=(x0, y0))
         # The longest outlines only: a ball is in at most a few pieces; this bounds the work
         # on cluttered frames.
         contours = sorted((c for c in contours if len(c) >= _MIN_CONTOUR_POINTS),
                           key=len, reverse=True)[:_MAX_PIECES]
         if not contours:
             return None
-        contours = [c.reshape(-1, 2) + (x0, y0) for c in contours]
+        lengths = np.array([len(c) for c in contours])
+        pixels = np.concatenate(contours).reshape(-1, 2)
+        view = _BallView(k, *pixels.mean(axis=0))
+        # Coordinates as rows (2, N): the fits' arithmetic runs on contiguous arrays.
+        points = view.from_image(pixels)
         # The image border cuts a ball like an occluder does: its edge is not the ball's.
-        borders = [(c[:, 0] <= 0) | (c[:, 0] >= width - 1) | (c[:, 1] <= 0)
-                   | (c[:, 1] >= height - 1) for c in contours]
-        view = _BallView(k, *np.concatenate(contours).mean(axis=0))
-        contours = [view.from_image(c.astype(np.float64)) for c in contours]
-        arcs = [c[~b] for c, b in zip(contours, borders) if (~b).sum() >= 3]
-        if sum(len(a) for a in arcs) < _MIN_CONTOUR_POINTS:
+        border = _on_border(pixels, width, height, (x0, y0, x1, y1))
+        arcs = _Arcs(points, lengths, border)
+        if arcs.points.shape[1] < _MIN_CONTOUR_POINTS:
             return None
-        points = np.concatenate(arcs)
         max_radius = max(width, height) / 2
         circle = _ransac_circle(arcs, self.min_radius_px, max_radius)
         if circle is None:
             return None
         cu, cv_, radius = circle
         tol = max(_TOL_PX, _TOL_FRACTION * radius)
-        on_circle = np.abs(np.hypot(points[:, 0] - cu, points[:, 1] - cv_) - radius) <= tol
-        n_on = int(on_circle.sum())
-        angles = np.arctan2(points[on_circle, 1] - cv_, points[on_circle, 0] - cu)
-        bins = np.unique(((angles + math.pi) / (2 * math.pi) * _COVERAGE_BINS).astype(int)
-                         % _COVERAGE_BINS)
-        coverage = len(bins) / _COVERAGE_BINS
-        bulge = sum(_bulge(c, b, cu, cv_, radius, tol) for c, b in zip(contours, borders))
-        if coverage < _MIN_COVERAGE or bulge > _MAX_BULGE_RATIO * n_on:
+        distance = _distances(arcs.points, cu, cv_)
+        on_circle = np.abs(distance - radius) <= tol
+        n_on = int(np.count_nonzero(on_circle))
+        on_x, on_y = arcs.points.compress(on_circle, axis=1)
+        angles = np.arctan2(on_y - cv_, on_x - cu)
+        bins = ((angles + math.pi) * (_COVERAGE_BINS / (2 * math.pi))).astype(int)
+        coverage = np.count_nonzero(np.bincount(bins % _COVERAGE_BINS)) / _COVERAGE_BINS
+        if coverage < _MIN_COVERAGE:
+            return None
+        if _bulge(_distances(points, cu, cv_), lengths, border, radius, tol) > (
+                _MAX_BULGE_RATIO * n_on):
             return None
         # Contour points are the blob's outermost pixel centres, half a pixel inside its edge.
         radius += 0.5
         if not self.min_radius_px <= radius <= max_radius:
             return None
-        u, v = view.to_image(cu, cv_)
-        # Ball-colour pixels inside the outline, around it (an ellipse within 1.3 radii).
-        reach = int(1.3 * radius) + 2
-        bx0, by0 = max(x0, int(u) - reach), max(y0, int(v) - reach)
-        bx1, by1 = min(x1, int(u) + reach + 1), min(y1, int(v) + reach + 1)
+        u, v = view.to_image(np.array([[cu, cv_]]))[0]
+        # Ball-colour pixels inside the outline (an ellipse off the axis): the outline drawn
+        # in a window around it.
+        outline = view.to_image(radius * _UNIT_CIRCLE + (cu, cv_))
+        bx0, by0 = np.maximum(np.floor(outline.min(axis=0)).astype(int), (x0, y0))
+        bx1, by1 = np.minimum(np.ceil(outline.max(axis=0)).astype(int) + 1, (x1, y1))
         if bx0 >= bx1 or by0 >= by1:
             return None
-        rows, cols = np.mgrid[by0:by1, bx0:bx1]
-        grid = view.from_image(np.column_stack([cols.ravel(), rows.ravel()]).astype(np.float64))
-        inside = (np.hypot(grid[:, 0] - cu, grid[:, 1] - cv_) <= radius).reshape(rows.shape)
-        ball_mask = (mask[by0 - y0:by1 - y0, bx0 - x0:bx1 - x0] > 0) & inside
+        inside = np.zeros((by1 - by0, bx1 - bx0), np.uint8)
+        vertices = np.round((outline - (bx0, by0)) * _SUBPIXEL).astype(np.int32)
+        cv2.fillPoly(inside, [vertices], 1, cv2.LINE_8, _SUBPIXEL_BITS)
+        ball_mask = (mask[by0 - y0:by1 - y0, bx0 - x0:bx1 - x0] & inside).view(bool)
         return n_on, Detection(u=float(u), v=float(v), radius=float(radius),
-                               coverage=coverage, mask=ball_mask, x0=bx0, y0=by0)
+                               coverage=coverage, mask=ball_mask, x0=int(bx0), y0=int(by0))
 
 
 class _BallView:
     """Pixel coordinates of a virtual camera turned to look straight at one image point.
 
-    Same focal length and centre as the real camera; only the rotation differs, so the image
-    of a sphere centred on the new axis is a circle. The identity without a camera matrix.
+    Same focal length as the real camera, its principal point at (0, 0); only the rotation
+    differs, so the image of a sphere centred on the new axis is a circle. Between the two
+    images is a homography. Without a camera matrix: the image itself.
     """
 
     def __init__(self, k: np.ndarray | None, u: float, v: float) -> None:
-        self.k = k
+        self._to_view = self._to_image = None
         if k is None:
             return
-        self.f = (k[0, 0] + k[1, 1]) / 2
-        ray = self._rays(np.array([[u, v]]))[0]
-        ray /= np.linalg.norm(ray)
-        # Rodrigues: the rotation taking the ray onto the optical axis.
-        axis = np.cross(ray, [0.0, 0.0, 1.0])
-        sin, cos = np.linalg.norm(axis), ray[2]
-        self.rotation = np.eye(3)
+        fx, fy, cx, cy = k[0, 0], k[1, 1], k[0, 2], k[1, 2]
+        x, y = (u - cx) / fx, (v - cy) / fy
+        # Rodrigues: the rotation taking the ray (x, y, 1) onto the optical axis, about
+        # the axis (y, -x, 0) / sin.
+        norm = math.sqrt(x * x + y * y + 1.0)
+        sin, cos = math.hypot(x, y) / norm, 1.0 / norm
         if sin > 1e-12:
-            x, y, z = axis / sin
-            cross = np.array([[0, -z, y], [z, 0, -x], [-y, x, 0]])
-            self.rotation += sin * cross + (1 - cos) * cross @ cross
-
-    def _rays(self, points: np.ndarray) -> np.ndarray:
-        k = self.k
-        return np.column_stack([(points[:, 0] - k[0, 2]) / k[0, 0],
-                                (points[:, 1] - k[1, 2]) / k[1, 1], np.ones(len(points))])
+            ax, ay = y / (norm * sin), -x / (norm * sin)
+            c1 = 1.0 - cos
+            rotation = np.array([
+                [cos + c1 * ax * ax, c1 * ax * ay, sin * ay],
+                [c1 * ax * ay, cos + c1 * ay * ay, -sin * ax],
+                [-sin * ay, sin * ax, cos]])
+        else:
+            rotation = np.eye(3)
+        f = (fx + fy) / 2
+        to_ray = np.array([[1 / fx, 0.0, -cx / fx], [0.0, 1 / fy, -cy / fy], [0.0, 0.0, 1.0]])
+        from_ray = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+        self._to_view = np.diag([f, f, 1.0]) @ rotation @ to_ray
+        self._to_image = from_ray @ rotation.T @ np.diag([1 / f, 1 / f, 1.0])
 
     def from_image(self, points: np.ndarray) -> np.ndarray:
-        """Return (N, 2) image points in the virtual view's pixels."""
-        if self.k is None:
-            return points
-        rays = self._rays(points) @ self.rotation.T
-        return self.f * rays[:, :2] / rays[:, 2:]
+        """Return (N, 2) image points in the virtual view's pixels, as rows (2, N) float64."""
+        return np.ascontiguousarray(_transform(points, self._to_view).T)
 
-    def to_image(self, x: float, y: float) -> tuple[float, float]:
-        """Return the image point of a point of the virtual view."""
-        if self.k is None:
-            return x, y
-        ray = self.rotation.T @ [x / self.f, y / self.f, 1.0]
-        k = self.k
-        return k[0, 0] * ray[0] / ray[2] + k[0, 2], k[1, 1] * ray[1] / ray[2] + k[1, 2]
+    def to_image(self, points: np.ndarray) -> np.ndarray:
+        """Return (N, 2) points of the virtual view in image pixels, (N, 2)."""
+        return _transform(points, self._to_image)
+
+
+def _transform(points: np.ndarray, homography: np.ndarray | None) -> np.ndarray:
+    points = points.astype(np.float64)
+    if homography is None:
+        return points
+    return cv2.perspectiveTransform(points.reshape(-1, 1, 2), homography).reshape(-1, 2)
+
+
+def _on_border(pixels: np.ndarray, width: int, height: int, window: tuple[int, int, int, int]
+               ) -> np.ndarray:
+    """Return which contour pixels (N, 2) lie on the image border.
+
+    Only the sides that the window (x0, y0, x1, y1) the contours come from touches are checked.
+    """
+    x0, y0, x1, y1 = window
+    border = np.zeros(len(pixels), dtype=bool)
+    for touches, axis, edge in ((x0 == 0, 0, 0), (y0 == 0, 1, 0), (x1 == width, 0, width - 1),
+                                (y1 == height, 1, height - 1)):
+        if touches:
+            border |= pixels[:, axis] == edge
+    return border
+
+
+class _Arcs:
+    """Contour points (2, N) off the image border, in runs along their contours."""
+
+    def __init__(self, points: np.ndarray, lengths: np.ndarray, border: np.ndarray) -> None:
+        if not border.any():
+            self.points, self.lengths = points, lengths
+            return
+        kept = np.add.reduceat(~border, np.cumsum(lengths) - lengths)
+        use = np.repeat(kept >= 3, lengths) & ~border
+        self.points, self.lengths = points.compress(use, axis=1), kept[kept >= 3]
+
+
+def _distances(points: np.ndarray, u: float, v: float) -> np.ndarray:
+    """Return the distances of points (2, N) from (u, v) (np.hypot is several times slower)."""
+    dx, dy = points[0] - u, points[1] - v
+    return np.sqrt(dx * dx + dy * dy)
 
 
 def _bulge_limit(radius: np.ndarray | float, tol: np.ndarray | float) -> np.ndarray | float:
@@ -253,67 +324,77 @@ def _bulge_limit(radius: np.ndarray | float, tol: np.ndarray | float) -> np.ndar
     return radius + np.maximum(_BULGE_FRACTION * radius, _BULGE_TOLS * tol)
 
 
-def _bulge(contour: np.ndarray, border: np.ndarray, u: float, v: float, radius: float,
+def _bulge(distance: np.ndarray, lengths: np.ndarray, border: np.ndarray, radius: float,
            tol: float) -> int:
-    """Return how many points of a closed contour bulge out of the circle like corners.
+    """Return how many contour points bulge out of the circle like corners.
 
-    Between two stretches on the circle, the contour either dips inside it (an occluder's
-    edge), runs along the image border, leaves for good (another object of the ball's colour
-    touching it in the image), or stays just outside: only the last is a bulge.
+    ``distance``: of every point of the closed contours (``lengths`` points each, in turn)
+    from the centre. Between two stretches on the circle, a contour either dips inside it
+    (an occluder's edge), runs along the image border, leaves for good (another object of
+    the ball's colour touching it in the image), or stays just outside: only the last is a
+    bulge.
     """
-    distance = np.hypot(contour[:, 0] - u, contour[:, 1] - v)
     on = np.abs(distance - radius) <= tol
-    if not on.any():  # a separate blob in the window
-        return 0
-    start = int(np.argmax(on))  # walk the closed contour from a point on the circle
-    distance, on, border = (np.roll(a, -start) for a in (distance, on, border))
-    stretch = np.cumsum(on)  # points between two on-circle points share a number
     excused = ~on & (border | (distance < radius - tol) | (distance > _bulge_limit(radius, tol)))
-    return int((~on & ~np.isin(stretch, stretch[excused])).sum())
+    bulge = 0
+    for start, end in zip(np.cumsum(lengths) - lengths, np.cumsum(lengths)):
+        contour_on = on[start:end]
+        if not contour_on.any():  # a separate blob in the window
+            continue
+        # Points between two on-circle points share a number; those before the first one
+        # close the contour's last stretch.
+        stretch = np.cumsum(contour_on)
+        stretch[:int(np.argmax(contour_on))] = stretch[-1]
+        spoilt = np.zeros(stretch[-1] + 1, dtype=bool)
+        spoilt[stretch[excused[start:end]]] = True
+        bulge += int(np.count_nonzero(~contour_on & ~spoilt[stretch]))
+    return bulge
 
 
-def _ransac_circle(arcs: list[np.ndarray], min_radius: float, max_radius: float
+def _ransac_circle(arcs: _Arcs, min_radius: float, max_radius: float
                    ) -> tuple[float, float, float] | None:
     """Return the best-supported circle (u, v, r) through contour points, least-squares refined.
 
-    ``arcs`` are ordered runs of contour points. Hypotheses come from point triples spaced
-    along one run, so that all three usually lie on the same outline (the ball's, not that of
-    an object touching it). A hypothesis scores its on-circle points times the fraction of
-    its circumference they cover, less a penalty for points bulging out of it: a large circle
-    that grazes a straight edge gets little.
+    Hypotheses come from point triples spaced along one run of contour points, so that all
+    three usually lie on the same outline (the ball's, not that of an object touching it);
+    runs get hypotheses in proportion to their length. A hypothesis scores its on-circle
+    points times the fraction of its circumference they cover, less a penalty for points
+    bulging out of it: a large circle that grazes a straight edge gets little.
     """
-    rng = np.random.default_rng(0)  # deterministic: the same frame gives the same answer
-    lengths = np.array([len(a) for a in arcs])
-    points = np.concatenate(arcs)
-    which = rng.choice(len(arcs), size=_RANSAC_HYPOTHESES, p=lengths / lengths.sum())
+    points, lengths = arcs.points, arcs.lengths
+    ends = np.cumsum(lengths)
+    which = np.searchsorted(ends, _HYPOTHESIS_QUANTILES * ends[-1], side='right')
     n = lengths[which]
-    start = rng.integers(0, n)
-    gap = rng.integers(np.maximum(1, n // 24), np.maximum(2, n // 3 + 1))
-    offsets = np.concatenate([[0], np.cumsum(lengths)[:-1]])[which]
-    index = offsets[:, None] + (start[:, None] + gap[:, None] * np.arange(3)) % n[:, None]
-    centres, radii = _circles_through(points[index])
+    start = (_HYPOTHESIS_STARTS * n).astype(int)
+    shortest = np.maximum(1, n // 24)
+    gap = shortest + (_HYPOTHESIS_GAPS * (np.maximum(2, n // 3 + 1) - shortest)).astype(int)
+    index = (ends - lengths)[which, None] + (start[:, None] + gap[:, None] * _TRIPLE) % n[:, None]
+    centres, radii = _circles_through(points[0, index], points[1, index])
     usable = np.isfinite(radii) & (radii >= 0.8 * min_radius) & (radii <= max_radius)
     if not usable.any():
         return None
-    centres, radii = centres[usable], radii[usable]
-    sample = points
-    if len(points) > _RANSAC_MAX_POINTS:
-        sample = points[rng.choice(len(points), _RANSAC_MAX_POINTS, replace=False)]
-    tol = np.maximum(_TOL_PX, _TOL_FRACTION * radii)[:, None]
-    # hypot of the two coordinate differences: a third of the time of norm over an axis.
-    distance = np.hypot(sample[None, :, 0] - centres[:, 0, None],
-                        sample[None, :, 1] - centres[:, 1, None])
-    residual = distance - radii[:, None]
-    scale = len(points) / len(sample)
-    on_circle = (np.abs(residual) <= tol).sum(axis=1) * scale
-    bulge = ((residual > tol) & (distance < _bulge_limit(radii[:, None], tol))).sum(axis=1)
+    centres, radii = centres.compress(usable, axis=1), radii[usable]
+    # Every so many points, evenly along the outlines; float32 keeps the (hypotheses, points)
+    # arrays small (allocations of over 128 kB each cost fresh pages from the kernel).
+    total = points.shape[1]
+    sample = points[:, ::-(-total // _RANSAC_MAX_POINTS)].astype(np.float32)
+    scale = total / sample.shape[1]
+    centres32 = centres.astype(np.float32)[:, :, None]
+    dx = sample[0] - centres32[0]
+    dy = sample[1] - centres32[1]
+    distance = np.sqrt(dx * dx + dy * dy)
+    tol = np.maximum(_TOL_PX, _TOL_FRACTION * radii)
+    residual = distance - radii[:, None].astype(np.float32)
+    on_circle = (np.abs(residual) <= tol[:, None]).sum(axis=1) * scale
+    bulge = ((residual > tol[:, None]) & (distance < _bulge_limit(radii, tol)[:, None])
+             ).sum(axis=1)
     seen = np.minimum(1.0, on_circle / (2 * math.pi * radii))
     best = int(np.argmax((on_circle - 2 * bulge * scale) * seen))
-    u, v, r = centres[best, 0], centres[best, 1], radii[best]
+    u, v, r = centres[0, best], centres[1, best], radii[best]
     for _ in range(2):  # least-squares refit on the points of the current circle
         tol = max(_TOL_PX, _TOL_FRACTION * r)
-        inliers = points[np.abs(np.hypot(points[:, 0] - u, points[:, 1] - v) - r) <= tol]
-        if len(inliers) < 3:
+        inliers = points.compress(np.abs(_distances(points, u, v) - r) <= tol, axis=1)
+        if inliers.shape[1] < 3:
             return None
         u, v, r = _fit_circle(inliers, (u, v, r))
     if not (np.isfinite(r) and 0.8 * min_radius <= r <= max_radius):
@@ -321,37 +402,42 @@ def _ransac_circle(arcs: list[np.ndarray], min_radius: float, max_radius: float
     return float(u), float(v), float(r)
 
 
-def _circles_through(triples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Return centres (M, 2) and radii (M,) of the circles through (M, 3, 2) point triples."""
-    a, b, c = triples[:, 0], triples[:, 1], triples[:, 2]
-    ab, ac = b - a, c - a
-    det = 2.0 * (ab[:, 0] * ac[:, 1] - ab[:, 1] * ac[:, 0])
-    ab2, ac2 = (ab ** 2).sum(axis=1), (ac ** 2).sum(axis=1)
+def _circles_through(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Return centres (2, M) and radii (M,) of the circles through (M, 3) point triples."""
+    abx, aby = x[:, 1] - x[:, 0], y[:, 1] - y[:, 0]
+    acx, acy = x[:, 2] - x[:, 0], y[:, 2] - y[:, 0]
+    det = 2.0 * (abx * acy - aby * acx)
+    ab2, ac2 = abx * abx + aby * aby, acx * acx + acy * acy
     with np.errstate(divide='ignore', invalid='ignore'):
-        ox = (ac[:, 1] * ab2 - ab[:, 1] * ac2) / det
-        oy = (ab[:, 0] * ac2 - ac[:, 0] * ab2) / det
-    centres = a + np.stack([ox, oy], axis=1)
-    return centres, np.hypot(ox, oy)
+        ox = (acy * ab2 - aby * ac2) / det
+        oy = (abx * ac2 - acx * ab2) / det
+    return np.stack([x[:, 0] + ox, y[:, 0] + oy]), np.sqrt(ox * ox + oy * oy)
 
 
 def least_squares_step(jacobian: np.ndarray, residual: np.ndarray) -> np.ndarray:
     """Return the Gauss-Newton step that minimises |jacobian @ step + residual|."""
-    normal = jacobian.T @ jacobian
-    try:
-        return np.linalg.solve(normal, -(jacobian.T @ residual))
-    except np.linalg.LinAlgError:  # degenerate points: least squares still answers
-        return np.linalg.lstsq(jacobian, -residual, rcond=None)[0]
+    solved, step = cv2.solve(jacobian.T @ jacobian, -(jacobian.T @ residual)[:, None],
+                             flags=cv2.DECOMP_CHOLESKY)
+    if solved:
+        return step[:, 0]
+    # Degenerate points: least squares still answers.
+    return np.linalg.lstsq(jacobian, -residual, rcond=None)[0]
 
 
 def _fit_circle(points: np.ndarray, start: tuple[float, float, float]
                 ) -> tuple[float, float, float]:
-    """Geometric least-squares circle fit (Gauss-Newton from ``start``)."""
+    """Geometric least-squares circle fit (Gauss-Newton from ``start``) to points (2, N)."""
     u, v, r = start
+    jacobian = np.empty((3, points.shape[1]))  # transposed
+    jacobian[2] = -1.0
+    offset = jacobian[:2]
     for _ in range(5):
-        dx, dy = points[:, 0] - u, points[:, 1] - v
-        distance = np.maximum(np.hypot(dx, dy), 1e-9)
-        jacobian = np.column_stack([-dx / distance, -dy / distance, -np.ones(len(points))])
-        step = least_squares_step(jacobian, distance - r)
+        np.subtract(((u,), (v,)), points, out=offset)
+        squares = offset * offset
+        distance = np.sqrt(squares[0] + squares[1])
+        np.maximum(distance, 1e-9, out=distance)
+        offset /= distance
+        step = least_squares_step(jacobian.T, distance - r)
         u, v, r = u + step[0], v + step[1], r + step[2]
         if abs(step).max() < 1e-3:
             break

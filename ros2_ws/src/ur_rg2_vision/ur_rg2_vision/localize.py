@@ -28,6 +28,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 import math
 
+import cv2
 import numpy as np
 
 from ur_rg2_vision.detector import Detection, least_squares_step
@@ -85,23 +86,27 @@ def locate_ball(detection: Detection, depth: np.ndarray, k: np.ndarray,
     """
     fx, fy, cx, cy = k[0, 0], k[1, 1], k[0, 2], k[1, 2]
     cols, rows = detection.pixels()
-    rho = np.hypot(cols - detection.u, rows - detection.v) / detection.radius
-    core = rho <= _CORE
-    if core.sum() >= _MIN_POINTS:  # a tiny ball has (almost) no core: use all its pixels
+    du, dv = cols - detection.u, rows - detection.v
+    core = du * du + dv * dv <= (_CORE * detection.radius) ** 2
+    if np.count_nonzero(core) >= _MIN_POINTS:  # a tiny ball has (almost) no core: use all
         cols, rows = cols[core], rows[core]
     if len(cols) > _MAX_POINTS:  # an even spread over the ball, the same for the same frame
         pick = np.linspace(0, len(cols) - 1, _MAX_POINTS).astype(int)
         cols, rows = cols[pick], rows[pick]
     z = depth[rows, cols].astype(np.float64)
     valid = np.isfinite(z) & (z > 0)
-    if valid.sum() < _MIN_POINTS:
+    if np.count_nonzero(valid) < _MIN_POINTS:
         return None
     cols, rows, z = cols[valid], rows[valid], z[valid]
-    points = np.column_stack([(cols - cx) / fx * z, (rows - cy) / fy * z, z])
+    # Coordinates as rows (3, N): the fits' arithmetic runs on contiguous arrays.
+    points = np.empty((3, len(z)))
+    np.multiply((cols - cx) / fx, z, out=points[0])
+    np.multiply((rows - cy) / fy, z, out=points[1])
+    points[2] = z
     ray = np.array([(detection.u - cx) / fx, (detection.v - cy) / fy, 1.0])
     ray /= np.linalg.norm(ray)
-    along = points @ ray
-    lateral2 = np.maximum((points ** 2).sum(axis=1) - along ** 2, 0.0)
+    along = ray @ points
+    lateral2 = np.maximum(np.einsum('ij,ij->j', points, points) - along * along, 0.0)
     focal = (fx + fy) / 2
     # The sphere's outline is a cone of half-angle asin(radius / distance), on the axis a
     # circle of radius f tan(half-angle): the detector reports it as if seen on the axis.
@@ -120,7 +125,8 @@ def locate_ball(detection: Detection, depth: np.ndarray, k: np.ndarray,
         # Start: the free fit's sphere, grown or shrunk away from its front.
         start = free.centre * (1 + (radius - free.radius) / np.linalg.norm(free.centre))
         fit = _robust_fit(points, start, radius, free_radius=False, keep=free.keep)
-    if fit is None or fit.keep.mean() < _MIN_KEPT_FRACTION or not _is_sphere(points, fit):
+    if (fit is None or np.count_nonzero(fit.keep) < _MIN_KEPT_FRACTION * len(z)
+            or not _is_sphere(points, fit)):
         return None
     centre = fit.centre
     distance = float(np.linalg.norm(centre))
@@ -129,12 +135,13 @@ def locate_ball(detection: Detection, depth: np.ndarray, k: np.ndarray,
     # Off the axis by theta, the image is stretched by up to 1 / cos(theta)^2 unless the
     # detector was given the camera matrix to undo that.
     cos_theta = centre[2] / distance
-    f_tan = focal * radius / np.sqrt(distance ** 2 - radius ** 2)
+    f_tan = focal * radius / math.sqrt(distance ** 2 - radius ** 2)
     if not (f_tan / _SIZE_TOLERANCE <= detection.radius
             <= f_tan / cos_theta ** 2 * _SIZE_TOLERANCE):
         return None
     return BallPosition(x=float(centre[0]), y=float(centre[1]), z=float(centre[2]),
-                        radius=float(radius), rms=fit.rms, points=int(fit.keep.sum()))
+                        radius=float(radius), rms=fit.rms,
+                        points=int(np.count_nonzero(fit.keep)))
 
 
 def locate_first(detections: Sequence[Detection], depth: np.ndarray, k: np.ndarray,
@@ -150,23 +157,26 @@ def locate_first(detections: Sequence[Detection], depth: np.ndarray, k: np.ndarr
 def _measure_radius(points: np.ndarray, ray: np.ndarray, along: np.ndarray,
                     lateral2: np.ndarray, sin_alpha: float, focal: float
                     ) -> tuple[float, _Fit] | None:
-    """Return (radius, the free fit) from outline and depth; None when the two disagree."""
+    """Return (radius, the free fit) from outline and depth; None when the two disagree.
+
+    ``points``: (3, N) coordinates.
+    """
     # 1. The sphere of radius distance * sin(alpha) through each point: solve
     #    |p - distance * ray| = distance * sin(alpha) for the distance.
     cone = 1 - sin_alpha ** 2
-    distance = float(_median(
+    distance = _median(
         (along + np.sqrt(np.maximum(sin_alpha ** 2 * (along ** 2 + lateral2) - lateral2, 0.0)))
-        / cone))
+        / cone)
     outline_radius = distance * sin_alpha
     # Half a pixel on the circle's radius moves the radius by about distance / f / cone.
     outline_sigma = distance * _CIRCLE_SIGMA_PX / focal / cone
     # 2. Depth alone, from the points near estimate 1.
     centre = ray * distance
-    residual = np.linalg.norm(points - centre, axis=1) - outline_radius
+    residual = _SphereJacobian(points, free_radius=False).update(centre, outline_radius)
     near = np.abs(residual - _median(residual)) <= _FIRST_TRIM_FLOOR * outline_radius
-    if near.sum() < _MIN_POINTS:
+    if np.count_nonzero(near) < _MIN_POINTS:
         return None
-    centre, radius = _algebraic_sphere(points[near], centre, outline_radius)
+    centre, radius = _algebraic_sphere(points.compress(near, axis=1), centre, outline_radius)
     fit = _robust_fit(points, centre, radius, free_radius=True)
     if fit is None or not np.isfinite(fit.radius_sigma) or fit.radius <= 0:
         return None
@@ -195,12 +205,20 @@ def _algebraic_sphere(points: np.ndarray, centre: np.ndarray, radius: float
                       ) -> tuple[np.ndarray, float]:
     """Return the least-squares sphere of |p|^2 = 2 c.p + d; the start given if degenerate.
 
-    Linear, so it needs no start, but it weighs points unevenly: a start for the geometric fit.
+    ``points``: (3, N). Linear, so it needs no start, but it weighs points unevenly: a start
+    for the geometric fit.
     """
-    offset = points.mean(axis=0)  # conditioning: points around the origin
-    local = points - offset
-    design = np.column_stack([2 * local, np.ones(len(local))])
-    solution, *_ = np.linalg.lstsq(design, (local ** 2).sum(axis=1), rcond=None)
+    offset = points.mean(axis=1)  # conditioning: points around the origin
+    design = np.empty((4, points.shape[1]))
+    np.subtract(points, offset[:, None], out=design[:3])
+    target = np.einsum('ij,ij->j', design[:3], design[:3])
+    design[:3] *= 2
+    design[3] = 1.0
+    solved, solution = cv2.solve(design @ design.T, (design @ target)[:, None],
+                                 flags=cv2.DECOMP_CHOLESKY)
+    if not solved:
+        return centre, radius
+    solution = solution[:, 0]
     squared = solution[3] + solution[:3] @ solution[:3]
     if not (np.isfinite(squared) and squared > 0):
         return centre, radius
@@ -211,35 +229,38 @@ def _robust_fit(points: np.ndarray, centre: np.ndarray, radius: float, free_radi
                 keep: np.ndarray | None = None) -> _Fit | None:
     """Gauss-Newton sphere fit with trimming; the radius fixed unless ``free_radius``.
 
-    ``keep``: the points a fit close to this start kept; without it, the start may be a few
-    millimetres off and the first round trims only points far off.
+    ``points``: (3, N). ``keep``: the points a fit close to this start kept; without it, the
+    start may be a few millimetres off and the first round trims only points far off.
     """
     if keep is None:
-        kept, floor = np.ones(len(points), dtype=bool), _FIRST_TRIM_FLOOR * radius
+        kept, floor = np.ones(points.shape[1], dtype=bool), _FIRST_TRIM_FLOOR * radius
     else:
         kept, floor = keep, _TRIM_FLOOR
+    jacobian = _SphereJacobian(points, free_radius)
     for _ in range(_ITERATIONS):
-        jacobian, residual = _sphere_jacobian(points, centre, radius, free_radius)
-        offset = _median(residual[kept])
-        spread = 1.4826 * _median(np.abs(residual[kept] - offset))
+        residual = jacobian.update(centre, radius)
+        kept_residual = residual[kept]
+        offset = _median(kept_residual)
+        spread = 1.4826 * _median(np.abs(kept_residual - offset))
         keep = np.abs(residual - offset) <= max(_TRIM_SIGMAS * spread, floor)
-        if keep.sum() < _MIN_POINTS:
+        if np.count_nonzero(keep) < _MIN_POINTS:
             return None
-        step = least_squares_step(jacobian[keep], residual[keep])
+        step = jacobian.step(keep, residual)
         centre = centre + step[:3]
         if free_radius:
             radius += step[3]
         floor = _TRIM_FLOOR
-        converged = np.abs(step).max() < _CONVERGED and (keep == kept).all()
+        converged = np.abs(step).max() < _CONVERGED and np.array_equal(keep, kept)
         kept = keep
         if converged:
             break
-    jacobian, residual = _sphere_jacobian(points[kept], centre, radius, free_radius)
-    rms = float(np.sqrt(np.mean(residual ** 2)))
+    residual = jacobian.update(centre, radius)[kept]
+    rms = math.sqrt(residual @ residual / len(residual))
     sigma = 0.0
     if free_radius:
+        columns = jacobian.columns.compress(kept, axis=1)
         try:
-            covariance = np.linalg.inv(jacobian.T @ jacobian)
+            covariance = np.linalg.inv(columns @ columns.T)
         except np.linalg.LinAlgError:
             return None
         # Residuals of a real surface are not independent (a rendered sphere's faces, a
@@ -255,16 +276,30 @@ def _is_sphere(points: np.ndarray, fit: _Fit) -> bool:
         return False
     distance = np.linalg.norm(fit.centre)
     # A concave or flat surface can be fitted from the wrong side; a ball faces the camera.
-    surface = _median(points[fit.keep] @ (fit.centre / distance))
+    surface = _median((fit.centre / distance) @ points.compress(fit.keep, axis=1))
     return bool(distance - surface >= _MIN_CENTRE_BEHIND * fit.radius)
 
 
-def _sphere_jacobian(points: np.ndarray, centre: np.ndarray, radius: float,
-                     free_radius: bool) -> tuple[np.ndarray, np.ndarray]:
-    """Return the Jacobian and residuals of |p - centre| - radius (over centre, radius)."""
-    offset = centre - points
-    distance = np.maximum(np.sqrt(np.einsum('ij,ij->i', offset, offset)), 1e-9)
-    jacobian = offset / distance[:, None]
-    if free_radius:
-        jacobian = np.column_stack([jacobian, -np.ones(len(points))])
-    return jacobian, distance - radius
+class _SphereJacobian:
+    """|p - centre| - radius and its Jacobian over the centre (and the radius), for points."""
+
+    def __init__(self, points: np.ndarray, free_radius: bool) -> None:
+        self.points = points  # (3, N)
+        self.columns = np.empty((4 if free_radius else 3, points.shape[1]))  # transposed
+        if free_radius:
+            self.columns[3] = -1.0
+
+    def update(self, centre: np.ndarray, radius: float) -> np.ndarray:
+        """Fill the Jacobian in for a sphere; return its residuals."""
+        offset = self.columns[:3]
+        np.subtract(centre[:, None], self.points, out=offset)
+        squares = offset * offset
+        distance = np.sqrt(squares[0] + squares[1] + squares[2])
+        np.maximum(distance, 1e-9, out=distance)
+        offset /= distance
+        return distance - radius
+
+    def step(self, rows: np.ndarray, residual: np.ndarray) -> np.ndarray:
+        """Return the Gauss-Newton step on the chosen rows (bool) from the last update."""
+        # compress: several times faster than a boolean index along the second axis
+        return least_squares_step(self.columns.compress(rows, axis=1).T, residual[rows])

@@ -29,6 +29,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
+from ur_rg2_sim.spin import keep_freed_memory
 
 from bench.processes import cpu_seconds, node_process, percentile, rss_mb
 
@@ -124,9 +125,14 @@ def _sizes() -> dict[str, list]:
 
 
 class _Feeder:
-    """Publishes one frame at 30 Hz, stamped now; records when each ball/position arrives."""
+    """Publishes one frame at 30 Hz, stamped now; records when each ball/position arrives.
+
+    It stands in for the camera and the viewer, image handlers like the vision node, and so
+    keeps freed memory as that does.
+    """
 
     def __init__(self, rgb: np.ndarray, depth: np.ndarray, k: np.ndarray) -> None:
+        keep_freed_memory()
         self.context = Context()
         self.context.init(domain_id=DOMAIN_ID)
         self.node = Node('vision_bench_feeder', context=self.context)

@@ -1,6 +1,7 @@
 """Process entry point shared by the project's nodes: create, spin, shut down cleanly."""
 
 from collections.abc import Callable
+import ctypes
 from typing import Optional, TypeVar
 
 import rclpy
@@ -14,6 +15,28 @@ N = TypeVar('N', bound=Node)
 
 # How long the executor waits for work before the loop looks at rclpy.ok() again, s.
 SPIN_WAIT_S = 0.25
+# glibc's mallopt parameters, and what the nodes set them to.
+_M_TRIM_THRESHOLD = -1
+_M_MMAP_THRESHOLD = -3
+_MMAP_THRESHOLD = 32 * 2 ** 20  # glibc's largest
+_TRIM_THRESHOLD = 64 * 2 ** 20
+
+
+def keep_freed_memory() -> None:
+    """Make glibc keep freed memory for reuse instead of handing it back to the kernel.
+
+    For a process that copies camera images around at the frame rate. By default glibc maps
+    a fresh block for each large allocation, or trims the heap once a few megabytes are
+    free, and every frame then touches hundreds of new pages: in the vision node about 200
+    page faults and 1 ms per annotated 640x480 image. (The sim measured no gain, 50 MB more
+    memory.) A no-op where the C library is not glibc.
+    """
+    try:
+        mallopt = ctypes.CDLL(None).mallopt
+    except (OSError, AttributeError):
+        return
+    mallopt(_M_MMAP_THRESHOLD, _MMAP_THRESHOLD)
+    mallopt(_M_TRIM_THRESHOLD, _TRIM_THRESHOLD)
 
 
 def run_node(make_node: Callable[[], N], args: Optional[list[str]], logger_name: str,

@@ -3,10 +3,11 @@
 ROS wiring only; the work is done by :mod:`ur_rg2_vision.detector` (colour + shape),
 :mod:`ur_rg2_vision.localize` (depth) and :mod:`ur_rg2_vision.frame_store` (PNG files).
 
-Each colour image is searched for the ball and republished annotated on ``ball/image`` at once;
-its depth image (same stamp, before or after it) completes it, and then ``ball/position`` is
-published. A few frames wait for their partner; a colour frame whose depth never comes gets no
-position.
+Each colour image is searched for the ball; its depth image (same stamp, before or after it)
+completes it, and then ``ball/position`` is published. A few frames wait for their partner; a
+colour frame whose depth never comes gets no position. The annotated copy on ``ball/image``
+follows as soon as the messages already waiting have been handled: a depth image that came
+right behind its colour image gives the position first (publishing the image costs 1-2 ms).
 
 All callbacks run one at a time on one thread (rclpy's multi-threaded executor costs twice the
 CPU here and falls behind at 30 Hz): no locks, and a save (~10 ms for both PNGs) simply delays
@@ -31,7 +32,7 @@ from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 from ur_rg2_sim.parameters import ParameterSpec, declare_parameters
-from ur_rg2_sim.spin import run_node
+from ur_rg2_sim.spin import keep_freed_memory, run_node
 
 from ur_rg2_vision.detector import (
     DEFAULT_MIN_RADIUS_PX,
@@ -152,6 +153,9 @@ class VisionNode(Node):
         self.create_subscription(Image, 'camera/depth/image_raw', self._on_depth, _IMAGE_QOS)
         self._position_pub = self.create_publisher(PointStamped, 'ball/position', 10)
         self._image_pub = self.create_publisher(Image, 'ball/image', _IMAGE_QOS)
+        # The executor takes a triggered guard condition after the subscriptions ready with it.
+        self._unpublished: list[_Frame] = []  # colour frames whose ball/image is due
+        self._images_due = self.create_guard_condition(self._publish_images)
         self.create_service(Trigger, 'vision/save_frame', self._on_save_frame)
         self.get_logger().info(
             f'looking for the ball in {self.resolve_topic_name("camera/color/image_raw")}; '
@@ -219,7 +223,14 @@ class VisionNode(Node):
         else:
             self._complete(frame, depth)  # the position before the (slower) image
         if self._image_pub.get_subscription_count() > 0:
-            self._image_pub.publish(rgb_to_image(_annotate(rgb, frame.detections), msg.header))
+            self._unpublished.append(frame)
+            self._images_due.trigger()
+
+    def _publish_images(self) -> None:
+        frames, self._unpublished = self._unpublished, []
+        for frame in frames:
+            self._image_pub.publish(rgb_to_image(_annotate(frame.rgb, frame.detections),
+                                                 frame.header))
 
     def _on_depth(self, msg: Image) -> None:
         try:
@@ -330,6 +341,7 @@ class VisionNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Run the node until Ctrl-C / SIGTERM; exit code 1 on invalid parameters."""
+    keep_freed_memory()
     return run_node(VisionNode, args, NODE_NAME, startup_errors=(ValueError, ParameterException))
 
 

@@ -114,7 +114,10 @@ class Detection:
 
 
 class BallDetector:
-    """Finds round blobs of one colour; see the module docstring for the method."""
+    """Finds round blobs of one colour; see the module docstring for the method.
+
+    It reuses its working images from frame to frame: one detector per thread.
+    """
 
     def __init__(self, color: HsvRange = RED,
                  min_radius_px: float = DEFAULT_MIN_RADIUS_PX) -> None:
@@ -308,7 +311,7 @@ class _Arcs:
         if not border.any():
             self.points, self.lengths = points, lengths
             return
-        kept = np.add.reduceat(~border, np.cumsum(lengths) - lengths)
+        kept = np.add.reduceat((~border).astype(np.intp), np.cumsum(lengths) - lengths)
         use = np.repeat(kept >= 3, lengths) & ~border
         self.points, self.lengths = points.compress(use, axis=1), kept[kept >= 3]
 

@@ -85,7 +85,9 @@ def locate_ball(detection: Detection, depth: np.ndarray, k: np.ndarray,
     matrix. ``ball_radius`` in metres fixes the radius; 0 measures it.
     """
     fx, fy, cx, cy = k[0, 0], k[1, 1], k[0, 2], k[1, 2]
-    cols, rows = detection.pixels()
+    # A large ball: a grid of its pixels, still about twice as many core pixels as are used.
+    core_pixels = math.pi * (_CORE * detection.radius) ** 2
+    cols, rows = detection.pixels(max(1, int(math.sqrt(core_pixels / (2 * _MAX_POINTS)))))
     du, dv = cols - detection.u, rows - detection.v
     core = du * du + dv * dv <= (_CORE * detection.radius) ** 2
     if np.count_nonzero(core) >= _MIN_POINTS:  # a tiny ball has (almost) no core: use all

@@ -62,6 +62,7 @@ class RosGraph:
         # Not rclpy's MultiThreadedExecutor: its callback dispatch starves other Python
         # threads (an in-process sim then ran at a third of its real-time factor).
         self.executor = BlockingGroupExecutor(context=self.context)
+        self._stopping = False
         self._thread = threading.Thread(target=self._spin, daemon=True)
         self._thread.start()
         self._nodes: list[Node] = []
@@ -75,8 +76,10 @@ class RosGraph:
     def _spin(self) -> None:
         try:
             self.executor.spin()
-        except Exception:  # noqa: BLE001 - the context is shut down under the executor
-            if self.context.ok():
+        except Exception:  # noqa: BLE001 - the executor or context is shut down under it
+            # A callback still running when shutdown gives up waiting for it (a loaded
+            # machine) meets the executor's destroyed handles.
+            if self.context.ok() and not self._stopping:
                 raise
 
     def add(self, node: Node) -> Node:
@@ -91,6 +94,7 @@ class RosGraph:
 
     def shutdown(self) -> None:
         # Stop spinning before destroying nodes, so no callback runs on a destroyed handle.
+        self._stopping = True
         self.executor.shutdown(timeout_sec=5.0)
         self._thread.join(timeout=5.0)
         for node in reversed(self._nodes):

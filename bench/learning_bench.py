@@ -2,16 +2,20 @@
 
 Environment steps per second with random actions (episodes reset as they end): one
 environment in this process; ``gymnasium.vector.AsyncVectorEnv`` with one worker process per
-core (every step a round trip from this process to each worker); one process per core, each
-stepping its own environment (as distributed trainers' environment runners do). Then the
+core (every step a round trip from this process to each worker), with the Reach environment
+and with an environment that does nothing but has Reach's spaces and info (the most
+AsyncVectorEnv itself can deliver here); one process per core, each stepping its own
+environment (as distributed trainers' environment runners do). Then the
 shipped Reach policy over 100 held-out episodes (evaluate_policy's seeds), with the training
 wall time its policy.json recorded. No torch needed.
 Run alone: python -m bench.learning_bench
 """
 
+from collections.abc import Callable
 import multiprocessing
 import os
 import time
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -42,9 +46,43 @@ def single_rate(env_id: str, steps: int) -> float:
         env.close()
 
 
-def vector_rate(env_id: str, workers: int, steps: int) -> float:
-    """Return total steps/s of ``workers`` environments, one process each (autoreset)."""
-    envs = gym.vector.AsyncVectorEnv([lambda: gym.make(env_id)] * workers)
+class NullEnv(gym.Env):
+    """An environment that does no work, with another's spaces and the same kind of info.
+
+    Its steps/s under AsyncVectorEnv are the vector environment's own ceiling: the pipe round
+    trips, pickling, shared-memory copies and info merging, with nothing to wait for.
+    """
+
+    def __init__(self, observation_space: gym.Space, action_space: gym.Space) -> None:
+        self.observation_space, self.action_space = observation_space, action_space
+        self._observation = observation_space.sample()
+
+    def reset(self, *, seed: int | None = None,
+              options: dict[str, Any] | None = None) -> tuple[Any, dict]:
+        """Return the one observation there is."""
+        super().reset(seed=seed)
+        return self._observation, {'is_success': False}
+
+    def step(self, action: Any) -> tuple[Any, float, bool, bool, dict]:
+        """Return the one observation there is, reward 0, never done."""
+        return self._observation, 0.0, False, False, {'is_success': False}
+
+
+def null_env(env_id: str) -> Callable[[], gym.Env]:
+    """Return a maker of :class:`NullEnv` with ``env_id``'s spaces, time limit and checks."""
+    env = gym.make(env_id)
+    spaces = (env.observation_space, env.action_space)
+    env.close()
+    return lambda: gym.wrappers.TimeLimit(NullEnv(*spaces), env.spec.max_episode_steps)
+
+
+def vector_rate(make_env: Callable[[], gym.Env], workers: int, steps: int,
+                **options: Any) -> float:
+    """Return total steps/s of ``workers`` environments, one process each (autoreset).
+
+    ``options`` go to AsyncVectorEnv (``shared_memory``, ``copy``, ...).
+    """
+    envs = gym.vector.AsyncVectorEnv([make_env] * workers, **options)
     rng = np.random.default_rng(0)
     try:
         envs.reset(seed=list(range(workers)))
@@ -76,9 +114,12 @@ def run() -> list[tuple[str, str, str]]:
         rate = single_rate(env_id, steps)
         target = '>= 2000' if env_id == REACH_ID else '-'
         rows.append((f'{env_id} env steps/s, 1 process, camera off', f'{rate:.0f}', target))
-    rate = vector_rate(REACH_ID, cores, VECTOR_STEPS)
+    rate = vector_rate(lambda: gym.make(REACH_ID), cores, VECTOR_STEPS)
     rows.append((f'{REACH_ID} env steps/s, AsyncVectorEnv, {cores} workers (1 per core)',
                  f'{rate:.0f} ({rate / cores:.0f} per core)', '>= 2000 per core'))
+    rate = vector_rate(null_env(REACH_ID), cores, VECTOR_STEPS)
+    rows.append((f'AsyncVectorEnv alone: env with no work, {REACH_ID} spaces, {cores} workers',
+                 f'{rate:.0f} ({rate / cores:.0f} per core)', '-'))
     rate = parallel_rate(REACH_ID, cores, STEPS[REACH_ID])
     rows.append((f'{REACH_ID} env steps/s, {cores} processes stepping their own env',
                  f'{rate:.0f} ({rate / cores:.0f} per core)', '>= 2000 per core'))

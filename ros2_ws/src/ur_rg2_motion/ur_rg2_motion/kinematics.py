@@ -114,6 +114,7 @@ def inverse(dh: DhParameters, pose: np.ndarray, wrist_3: float = 0.0) -> list[tu
     """
     (nx, ox, zx, px), (ny, oy, zy, py), (nz, oz, zz, pz) = pose.tolist()[:3]
     d1, a2, a3, d4, d5, d6 = dh.d1, dh.a2, dh.a3, dh.d4, dh.d5, dh.d6
+    remainder, tau = math.remainder, 2 * math.pi
     solutions = []
     # Shoulder pan: the wrist centre (flange minus d6 along z) lies d4 off the arm's plane.
     wx, wy = px - d6 * zx, py - d6 * zy
@@ -155,8 +156,8 @@ def inverse(dh: DhParameters, pose: np.ndarray, wrist_3: float = 0.0) -> list[tu
                 q2 = math.atan2(ea * p13y - eb * p13x, ea * p13x + eb * p13y)
                 c23, s23 = math.cos(q2 + q3), math.sin(q2 + q3)
                 q4 = math.atan2(c23 * x04y - s23 * x04x, x04x * c23 + x04y * s23)
-                solutions.append(tuple(math.remainder(a, 2 * math.pi)
-                                       for a in (q1, q2, q3, q4, q5, q6)))
+                solutions.append((remainder(q1, tau), remainder(q2, tau), remainder(q3, tau),
+                                  remainder(q4, tau), remainder(q5, tau), remainder(q6, tau)))
     return solutions
 
 
@@ -277,7 +278,7 @@ class ArmKinematics:
             if q is None:
                 failures.add('joint_limits')
             else:
-                candidates.append((sum((a - b) ** 2 for a, b in zip(q, current)), q))
+                candidates.append((sum([(a - b) ** 2 for a, b in zip(q, current)]), q))
         # Nearest first: the obstacle checks, the costly part, usually run for one branch only
         # (the learning environments solve once per step).
         best = None
@@ -316,13 +317,17 @@ class ArmKinematics:
 
     def _obstacle_failure(self, points: list) -> str | None:
         """Return 'floor' or 'pedestal' if a point is below the floor or in a keep-out box."""
+        # Plain loops: called for every solve, where generator expressions cost more than
+        # the comparisons.
         lowest = self.floor_z + self.clearance
-        if any(p[2] < lowest for p in points):
-            return 'floor'
+        for p in points:
+            if p[2] < lowest:
+                return 'floor'
         for box in self.keep_out:
-            if any(all(lo < c < hi for lo, c, hi in zip(box.lower, p, box.upper))
-                   for p in points):
-                return 'pedestal'
+            (x0, y0, z0), (x1, y1, z1) = box.lower, box.upper
+            for x, y, z in points:
+                if x0 < x < x1 and y0 < y < y1 and z0 < z < z1:
+                    return 'pedestal'
         return None
 
 
@@ -330,12 +335,13 @@ def _within_limits(q: Sequence[float], current: Sequence[float],
                    limits: Sequence[tuple[float, float]]) -> list[float] | None:
     """Return ``q`` with each joint the 2 pi equivalent nearest current inside the limits."""
     result = []
+    remainder, tau = math.remainder, 2 * math.pi
     for angle, now, (lo, hi) in zip(q, current, limits):
-        angle = now + math.remainder(angle - now, 2 * math.pi)
+        angle = now + remainder(angle - now, tau)
         if angle > hi:
-            angle -= 2 * math.pi
+            angle -= tau
         elif angle < lo:
-            angle += 2 * math.pi
+            angle += tau
         if not lo <= angle <= hi:
             return None
         result.append(angle)
@@ -344,14 +350,17 @@ def _within_limits(q: Sequence[float], current: Sequence[float],
 
 def check_pose(pose: np.ndarray) -> None:
     """Raise KinematicsError('invalid') unless ``pose`` is a finite 4x4 rigid transform."""
-    if pose.shape != (4, 4) or not np.isfinite(pose).all():
+    # Scalar arithmetic throughout: for one 4x4 it is several times faster than numpy, and
+    # every solve (every step of the learning environments) checks its target.
+    values = pose.ravel().tolist() if pose.shape == (4, 4) else None
+    if values is None or not all(map(math.isfinite, values)):
         raise KinematicsError('invalid', 'the target pose is not finite')
-    r = pose[:3, :3]
-    # The determinant of an orthonormal matrix is the triple product of its columns (scalar
-    # arithmetic: np.linalg.det costs more than the rest of the check).
-    (a, b, c), (d, e, f), (g, h, i) = r.tolist()
+    a, b, c, _, d, e, f, _, g, h, i, _ = values[:12]
+    # Orthonormal columns (R^T R = I), and the determinant, the triple product of the columns.
+    gram = (a * a + d * d + g * g - 1.0, b * b + e * e + h * h - 1.0, c * c + f * f + i * i - 1.0,
+            a * b + d * e + g * h, a * c + d * f + g * i, b * c + e * f + h * i)
     determinant = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
-    if np.abs(r.T @ r - np.eye(3)).max() > 1e-6 or determinant < 0:
+    if max(map(abs, gram)) > 1e-6 or determinant < 0:
         raise KinematicsError('invalid', 'the target orientation is not a rotation')
 
 

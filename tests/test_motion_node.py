@@ -66,6 +66,9 @@ class Rig:
                  'the trajectory action server')
         wait_for(self._tree_ready, TIMEOUT, 'the transform tree')
         wait_for(self._motion_tree_ready, TIMEOUT, "the motion node's transform tree")
+        # A command before it has the arm's model is refused (and then never repeated).
+        wait_for(lambda: self.motion._urdf is not None, TIMEOUT,
+                 "the motion node's robot_description")
 
     def _on_state(self, msg: JointState) -> None:
         with self._lock:

@@ -51,8 +51,8 @@ _COVERAGE_BINS = 36
 _HYPOTHESIS_QUANTILES = (np.arange(_RANSAC_HYPOTHESES) + 0.5) / _RANSAC_HYPOTHESES
 _HYPOTHESIS_STARTS, _HYPOTHESIS_GAPS = np.random.default_rng(0).random((2, _RANSAC_HYPOTHESES))
 _TRIPLE = np.arange(3)
-_UNIT_CIRCLE = np.column_stack([np.cos(np.linspace(0, 2 * math.pi, 64, endpoint=False)),
-                                np.sin(np.linspace(0, 2 * math.pi, 64, endpoint=False))])
+_OUTLINE_ANGLES = np.linspace(0, 2 * math.pi, 64, endpoint=False)
+_UNIT_CIRCLE = np.column_stack([np.cos(_OUTLINE_ANGLES), np.sin(_OUTLINE_ANGLES)])
 _SUBPIXEL_BITS = 4  # the ball's outline is drawn to 1/16 pixel
 _SUBPIXEL = 1 << _SUBPIXEL_BITS
 
@@ -281,7 +281,7 @@ class _BallView:
         return np.ascontiguousarray(_transform(points, self._to_view).T)
 
     def to_image(self, points: np.ndarray) -> np.ndarray:
-        """Return (N, 2) points of the virtual view in image pixels, (N, 2)."""
+        """Return (N, 2) points of the virtual view as (N, 2) image pixels."""
         return _transform(points, self._to_image)
 
 

@@ -1,8 +1,9 @@
 """Make the README's picture: the vision node's camera view with the ball it detected.
 
-Runs the real graph headless (``python -m bringup``) on a private ROS domain, waits until the
-scene has settled, and writes the ``ball/image`` frame whose stamp vision also published a
-``ball/position`` for, i.e. a frame with a detection drawn on it.
+Runs the real graph headless (what ``scripts/run`` runs, ``python -m ur_rg2_bringup.run``) on
+a private ROS domain, waits until the scene has settled, and writes the ``ball/image`` frame
+whose stamp vision also published a ``ball/position`` for, i.e. a frame with a detection drawn
+on it.
 
 usage: scripts/camera-view [OUTPUT.png] [NAME:=VALUE ...]   (default docs/camera_view.png;
        parameters go to the graph as with scripts/run, e.g. robot_model:=ur3)
@@ -50,9 +51,9 @@ def capture(params: list[str], domain_id: int) -> Image:
     node.create_subscription(Image, 'ball/image', on_image, QoSProfile(depth=30))
     node.create_subscription(PointStamped, 'ball/position',
                              lambda m: detected.append(stamp(m)), 10)
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
-               PYTHONPATH=str(ROOT))
-    graph = subprocess.Popen([sys.executable, '-m', 'bringup', '--headless', 'port:=0', *params],
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+    graph = subprocess.Popen([sys.executable, '-m', 'ur_rg2_bringup.run', '--headless', 'port:=0',
+                              *params],
                              env=env, stdin=subprocess.DEVNULL)
     try:
         deadline = time.monotonic() + TIMEOUT_S

@@ -1,4 +1,4 @@
-"""The README's run command with the real nodes: headless graph, options routed, clean stop."""
+"""The README's run command (graph.launch.py, keys in the terminal) with the real nodes."""
 
 import os
 from pathlib import Path
@@ -14,24 +14,10 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, qos_profile_sensor_data
 from sensor_msgs.msg import Image
 from std_srvs.srv import Trigger
-from test_bringup import become_terminal_session_leader, open_terminal
-
-from bringup.graph import GRAPH
+from test_bringup import become_terminal_session_leader, open_terminal, running
+from ur_rg2_bringup.graph import KEYS, NODES
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def processes_in_group(pgid: int) -> list[int]:
-    """Return the live processes of process group ``pgid``."""
-    found = []
-    for stat in Path('/proc').glob('[0-9]*/stat'):
-        try:
-            fields = stat.read_text().rsplit(')', 1)[1].split()
-        except OSError:  # it ended while we looked
-            continue
-        if int(fields[2]) == pgid and fields[0] not in ('Z', 'X'):
-            found.append(int(stat.parent.name))
-    return found
 
 
 def nodes_ready(probe: Node, interactive: bool) -> bool:
@@ -41,7 +27,7 @@ def nodes_ready(probe: Node, interactive: bool) -> bool:
     """
     services = {name for name, _ in probe.get_service_names_and_types()}
     return all(f'/{node.node_name}/list_parameters' in services
-               for node in GRAPH if interactive or not node.interactive)
+               for node in (*NODES, KEYS) if interactive or node is not KEYS)
 
 
 def test_headless_graph_takes_options_and_stops_on_sigterm(ros_graph, tmp_path):
@@ -79,30 +65,31 @@ def test_headless_graph_takes_options_and_stops_on_sigterm(ros_graph, tmp_path):
         assert str(frames) in future.result().message
 
         wait_for(lambda: nodes_ready(probe, interactive=False), 30.0, 'all nodes')
-        wait_for(lambda: 'ur_rg2_vision does not' in log_path.read_text(), 30.0,
-                 'the parameters no node takes')
-        reported = [line for line in log_path.read_text().splitlines()
-                    if 'declare' in line]
+        reported = [line for line in log_path.read_text().splitlines() if 'declare' in line]
         assert reported == [
-            "bringup: no node declares parameter 'camera_rte' (did you mean camera_rate?)",
-            "bringup: ur_rg2_vision does not declare parameter 'camera_rate'"]
-        started = re.search(r'bringup: started (.*)', log_path.read_text()).group(1)
-        pids = {name: int(pid) for name, pid in re.findall(r'(\w+) \(pid (\d+)\)', started)}
-        assert set(pids) >= {'sim', 'vision'}
-        assert 'keys' not in pids
+            "[WARNING] [graph.launch.py]: no node declares parameter 'camera_rte' "
+            '(did you mean camera_rate?): ignored',
+            "[WARNING] [graph.launch.py]: ur_rg2_vision does not declare parameter "
+            "'camera_rate': ignored"]
+        pids = {name: int(pid) for name, pid in re.findall(
+            r'\[INFO\] \[(\w+)-\d+\]: process started with pid \[(\d+)\]',
+            log_path.read_text())}
+        assert set(pids) == {node.name for node in NODES}
 
         run.send_signal(signal.SIGTERM)
-        assert run.wait(timeout=20) == 0, log_path.read_text()
+        assert run.wait(timeout=30) == 0, log_path.read_text()
     finally:
         run.kill()
     output = log_path.read_text()
     assert 'no terminal on standard input' in output
-    assert 'SIGTERM received: stopping ' + ', '.join(pids) in output
-    assert 'still running' not in output  # every node stopped cleanly on the first SIGINT
-    assert 'all stopped' in output
+    # Every node stopped cleanly on the first SIGINT launch sent it.
+    for name in pids:
+        assert re.search(rf'\[{name}-\d+\]: process has finished cleanly', output), output
+    assert 'process has died' not in output
+    assert 'failed to terminate' not in output
     assert 'Traceback' not in output
     for name, pid in pids.items():
-        assert not processes_in_group(pid), f'{name} left processes behind'
+        assert not running(pid), f'{name} outlived the graph'
 
 
 @pytest.mark.parametrize('quit_key', [b'p', b'\x03'], ids=['p', 'ctrl-c'])
@@ -132,15 +119,13 @@ def test_in_a_terminal_keys_runs_in_the_foreground_and_quitting_stops_all(
         os.close(controller)
         os.close(terminal)
     output = log_path.read_text()
-    started = re.search(r'bringup: started (.*)', output).group(1)
-    pids = {name: int(pid) for name, pid in re.findall(r'(\w+) \(pid (\d+)\)', started)}
-    assert list(pids)[-1] == 'keys'
-    assert 'keys exited: stopping ' + ', '.join(list(pids)[:-1]) in output
-    assert 'all stopped' in output
+    assert 'keyboard teleop' in output
+    assert 'process has died' not in output
     assert 'Traceback' not in output
-    for name, pid in pids.items():
-        if name != 'keys':
-            assert not processes_in_group(pid), f'{name} left processes behind'
+    for name, pid in re.findall(r'\[INFO\] \[(\w+)-\d+\]: process started with pid \[(\d+)\]',
+                                output):
+        assert re.search(rf'\[{name}-\d+\]: process has finished cleanly', output), output
+        assert not running(int(pid)), f'{name} outlived the graph'
 
 
 def test_a_node_that_dies_is_named_with_its_error_on_the_last_line(ros_graph, tmp_path):
@@ -154,9 +139,10 @@ def test_a_node_that_dies_is_named_with_its_error_on_the_last_line(ros_graph, tm
     finally:
         run.kill()
     output = log_path.read_text()
-    # The sim's own FATAL line, then the others' while they stop, then the summary.
+    # The sim's own FATAL line, launch's stop reason, the others stopping, then the summary.
     last = output.splitlines()[-1]
     assert re.fullmatch(r"bringup: sim exited with code 2: \[FATAL\] \[[\d.]+\] \[ur_rg2_sim\]: "
                         r".*robot_model.*'ur7'.*", last), output
-    assert output.count(last.split(': ', 2)[2]) == 2  # said by the sim, repeated by bringup
+    assert output.count(last.split(': ', 2)[2]) == 3  # the sim's, launch's, bringup's
+    assert 'sim exited with code 2' in output
     assert 'Traceback' not in output

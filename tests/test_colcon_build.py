@@ -21,7 +21,8 @@ from sensor_msgs.msg import JointState
 ROOT = Path(__file__).resolve().parents[1]
 # The contract's executables; every other console script a package declares is checked too.
 EXECUTABLES = {'ur_rg2_sim': 'sim', 'ur_rg2_teleop': 'keys', 'ur_rg2_vision': 'vision',
-               'ur_rg2_motion': 'motion', 'ur_rg2_learning': 'policy'}
+               'ur_rg2_motion': 'motion', 'ur_rg2_learning': 'policy',
+               'ur_rg2_bringup': 'graph'}
 ARM_JOINTS = ['shoulder_pan_joint', 'shoulder_lift_joint', 'elbow_joint', 'wrist_1_joint',
               'wrist_2_joint', 'wrist_3_joint']
 
@@ -83,6 +84,17 @@ def test_sourced_install_resolves_packages_from_it_and_rclpy_from_the_venv(works
     # The installed copy, not the venv's editable install of the source tree.
     assert Path(module).is_relative_to(workspace / 'install/ur_rg2_sim/lib')
     assert Path(rclpy_module).is_relative_to(sys.prefix)
+
+
+def test_ros2_launch_finds_the_installed_launch_file(workspace):
+    prefix = subprocess.run(in_workspace(workspace, 'ros2', 'pkg', 'prefix', 'ur_rg2_bringup'),
+                            capture_output=True, text=True, timeout=60)
+    assert prefix.stdout.strip() == str(workspace / 'install/ur_rg2_bringup'), prefix.stderr
+    shown = subprocess.run(in_workspace(workspace, 'ros2', 'launch', 'ur_rg2_bringup',
+                                        'graph.launch.py', '--show-args'),
+                           capture_output=True, text=True, timeout=60)
+    assert shown.returncode == 0, shown.stderr
+    assert "'camera_rate':" in shown.stdout and "'namespace':" in shown.stdout
 
 
 def test_install_carries_the_shipped_policy(workspace):

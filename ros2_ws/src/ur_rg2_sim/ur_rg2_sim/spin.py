@@ -2,6 +2,7 @@
 
 from collections.abc import Callable
 import ctypes
+import signal
 from typing import Optional, TypeVar
 
 import rclpy
@@ -39,6 +40,12 @@ def keep_freed_memory() -> None:
     mallopt(_M_TRIM_THRESHOLD, _TRIM_THRESHOLD)
 
 
+def ignore_stop_signals() -> None:
+    """Ignore SIGINT and SIGTERM from now on: the process is already on its way out."""
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, signal.SIG_IGN)
+
+
 def run_node(make_node: Callable[[], N], args: Optional[list[str]], logger_name: str,
              startup_errors: tuple[type[Exception], ...] = (), *,
              on_startup_error: Optional[Callable[[Exception], int]] = None,
@@ -52,6 +59,9 @@ def run_node(make_node: Callable[[], N], args: Optional[list[str]], logger_name:
     ``failure``, if given, is asked after every wait: a message from it is logged as fatal and
     ends the process with exit code 1.
     """
+    # SIGINT is how ros2 launch and ros2 run stop a node, even when it was started with SIGINT
+    # ignored (a shell's background job, nohup).
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     rclpy.init(args=args)
     # Before the node: an executor created after a signal has shut the context down fails
     # half-built and prints a traceback from its __del__.
@@ -87,6 +97,10 @@ def run_node(make_node: Callable[[], N], args: Optional[list[str]], logger_name:
             get_logger(logger_name).error(f'stopped: {error}')
             raise
     finally:
+        # Teardown is short and bounded. ``ros2 launch`` and ``ros2 run`` send their own SIGINT
+        # right after the terminal's, and that second one must not interrupt it with a
+        # KeyboardInterrupt traceback (launch would then report the node as died).
+        ignore_stop_signals()
         executor.shutdown()
         if node is not None:
             node.destroy_node()

@@ -1,1 +1,0 @@
-"""Bring-up of the node graph: ``scripts/run`` starts it with ``python -m bringup``."""

@@ -1,0 +1,1 @@
+"""The UR + RG2 node graph: its launch arguments and the graph executable."""

@@ -1,0 +1,211 @@
+"""``ros2 run ur_rg2_bringup graph`` (``scripts/run``): graph.launch.py, keys in this terminal.
+
+The launch file does the work of a launch file: it starts, watches and stops the nodes, and
+reports a node's death and unknown parameters. What is left here is what a launch file cannot
+do, in a parent process of launch:
+
+- keys needs the terminal itself (raw input, its own screen), so it runs beside launch as a
+  plain child in the foreground, and when it quits the graph stops with it;
+- launch stops its nodes in order on SIGINT only (on SIGTERM it exits at once and leaves them
+  running), so a SIGTERM or SIGHUP from a service manager or a closed terminal reaches launch
+  as SIGINT; a second stop signal kills launch and its nodes at once; and launch, in a session
+  of its own, gets SIGINT should this process be killed outright, so no node outlives it;
+- the exit status: 1 when a node died, the last line saying which and why (launch_graph).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+import ctypes
+from dataclasses import dataclass
+import os
+import shlex
+import signal
+import subprocess
+import sys
+
+from ament_index_python.packages import get_package_prefix
+
+from ur_rg2_bringup.graph import KEYS, NODES, ROS_ARGS_ARGUMENT, describe_exit
+
+USAGE = """\
+usage: scripts/run [--headless] [NAME:=VALUE ...] [NODE:NAME:=VALUE ...] [--ros-args ARGS ...]
+       (in a ROS install: ros2 run ur_rg2_bringup graph ...)
+
+Start the UR + RG2 node graph with ROS 2's launch (the launch file graph.launch.py of
+ur_rg2_bringup: sim, vision, motion, viewer: open http://127.0.0.1:8080/) and, when standard
+input is a terminal, the keyboard teleop (keys) in the foreground. Quit with p or Ctrl-C in
+keys; everything stops with it. Without a terminal (piped, CI, a service manager) the graph
+runs headless until SIGINT or SIGTERM. If a node dies, the others are stopped, the last line
+says which node and why, and the exit status is 1. Nodes are stopped with SIGINT, then SIGTERM
+after 5 s, then SIGKILL.
+
+parameters:
+  NAME:=VALUE       a launch argument of graph.launch.py: a parameter for every node that
+                    declares it (e.g. robot_model:=ur3 gui:=true camera_rate:=15.0
+                    frames_dir:=/tmp/f step_deg:=2.0); one that no node declares is reported
+  NODE:NAME:=VALUE  a parameter for one node only; NODE is {short} or a ROS node name
+                    (e.g. sim:camera_rate:=15.0, ur_rg2_teleop:step_deg:=2.0)
+  VALUE is YAML, as for ros2 run: true, 15.0, ur3, "[0.5, 0.0, 0.03]"
+  ros2 launch ur_rg2_bringup graph.launch.py --show-args lists the launch arguments.
+
+options:
+  --headless        do not start keys even when standard input is a terminal
+  --ros-args ARGS   everything after this goes to every node unchanged
+                    (e.g. --ros-args -r __ns:=/arm1 --log-level debug)
+  -h, --help        show this help and exit
+""".format(short=', '.join(node.name for node in (*NODES, KEYS)))
+
+# keys' own parameters: a NAME:=VALUE of these goes to keys, not to the launch file.
+KEYS_PARAMETERS = frozenset({'step_deg', 'step_mm', 'use_sim_time'})
+
+
+class UsageError(Exception):
+    """A command-line mistake; the message says which."""
+
+
+@dataclass(frozen=True)
+class Options:
+    """The parsed command line."""
+
+    headless: bool = False
+    help: bool = False
+    launch_arguments: tuple[tuple[str, str], ...] = ()
+    keys_arguments: tuple[str, ...] = ()
+    """ROS arguments for keys (its parameters, then everything after ``--ros-args``)."""
+
+
+def parse_args(argv: Sequence[str]) -> Options:
+    """Turn ``scripts/run`` arguments into launch arguments and keys' ROS arguments."""
+    headless = False
+    launch_arguments: list[tuple[str, str]] = []
+    keys_parameters: list[str] = []
+    ros_args: list[str] = []
+    args = list(argv)
+    while args:
+        arg = args.pop(0)
+        if arg == '--ros-args':
+            ros_args = args
+            launch_arguments.append((ROS_ARGS_ARGUMENT[0], shlex.join(args)))
+            break
+        if arg in ('-h', '--help'):
+            return Options(help=True)
+        if arg == '--headless':
+            headless = True
+        elif ':=' in arg and not arg.startswith('-'):
+            name, value = arg.split(':=', 1)
+            node, sep, parameter = name.rpartition(':')
+            if not parameter or (sep and not node):
+                raise UsageError(f'{arg!r}: expected NAME:=VALUE or NODE:NAME:=VALUE')
+            for_keys = node in (KEYS.name, KEYS.node_name) or (
+                not sep and parameter in KEYS_PARAMETERS)
+            if for_keys:
+                keys_parameters += ['-p', f'{parameter}:={value}']
+            if not for_keys or (not sep and parameter == 'use_sim_time'):
+                launch_arguments.append((name, value))
+        else:
+            raise UsageError(f'unknown argument {arg!r}')
+    return Options(headless=headless, launch_arguments=tuple(launch_arguments),
+                   keys_arguments=(*keys_parameters, *ros_args))
+
+
+def keys_executable() -> str:
+    """Return the path of the keys executable, found as ``ros2 run`` finds it."""
+    return os.path.join(get_package_prefix(KEYS.package), 'lib', KEYS.package, KEYS.executable)
+
+
+# Signals that ask the graph to stop: Ctrl-C, a service manager, a closed terminal.
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+_PR_SET_PDEATHSIG = 1
+# How often the loop looks at keys and launch, s.
+_POLL_S = 0.1
+
+
+def _prepare_launch_child() -> None:
+    """In the launch child before exec: SIGINT stops it, and comes when this process dies.
+
+    SIGINT may be ignored here (a shell's background job); launch's nodes inherit that.
+    """
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, int(signal.SIGINT))
+    except (OSError, AttributeError):
+        pass
+
+
+class _Graph:
+    """The launch child and, with a terminal, keys; stop signals relayed to launch."""
+
+    def __init__(self, options: Options, interactive: bool) -> None:
+        self._stop_requests = 0
+        # Its own session: terminal signals reach this process (and keys), which alone
+        # decides how launch stops.
+        self._launch = subprocess.Popen(
+            [sys.executable, '-m', 'ur_rg2_bringup.launch_graph',
+             *(f'{name}:={value}' for name, value in options.launch_arguments)],
+            start_new_session=True, preexec_fn=_prepare_launch_child)
+        self._keys: subprocess.Popen | None = None
+        if interactive:
+            self._keys = subprocess.Popen([keys_executable(), '--ros-args',
+                                           *options.keys_arguments])
+
+    def _on_stop_signal(self, _signum, _frame) -> None:
+        self._stop_requests += 1
+        if self._stop_requests == 1:
+            self._launch.send_signal(signal.SIGINT)
+        else:
+            os.killpg(self._launch.pid, signal.SIGKILL)
+
+    def run(self) -> int:
+        for signum in STOP_SIGNALS:
+            signal.signal(signum, self._on_stop_signal)
+        keys_failure = None
+        while True:
+            try:
+                returncode = self._launch.wait(timeout=_POLL_S)
+                break
+            except subprocess.TimeoutExpired:
+                pass
+            if self._keys is not None and self._keys.poll() is not None:
+                if self._keys.returncode != 0:
+                    keys_failure = f'keys {describe_exit(self._keys.returncode)}'
+                self._keys = None
+                if not self._stop_requests:
+                    self._on_stop_signal(signal.SIGINT, None)
+        self._stop_keys()
+        if keys_failure is not None:
+            print(f'bringup: {keys_failure}', file=sys.stderr, flush=True)
+            return 1
+        return 1 if returncode < 0 else returncode
+
+    def _stop_keys(self) -> None:
+        if self._keys is None or self._keys.poll() is not None:
+            return
+        self._keys.terminate()  # keys restores the terminal on SIGTERM
+        try:
+            self._keys.wait(timeout=5.0)
+        except subprocess.TimeoutExpired:
+            self._keys.kill()
+            self._keys.wait()
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the graph; return the process exit status."""
+    try:
+        options = parse_args(sys.argv[1:] if argv is None else argv)
+    except UsageError as exc:
+        print(f'bringup: {exc}\n(scripts/run --help shows the usage)', file=sys.stderr)
+        return 2
+    if options.help:
+        print(USAGE, end='')
+        return 0
+    interactive = not options.headless and sys.stdin.isatty()
+    if not interactive:
+        why = '--headless' if options.headless else 'no terminal on standard input'
+        print(f'bringup: {why}: running {", ".join(n.name for n in NODES)} headless; '
+              'stop with Ctrl-C or SIGTERM', file=sys.stderr, flush=True)
+    return _Graph(options, interactive).run()
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -23,6 +23,7 @@ from typing import Any
 import gymnasium as gym
 from gymnasium import spaces
 import numpy as np
+from ur_rg2_common.contract import ARM_JOINTS
 from ur_rg2_motion.kinematics import (
     FLOOR_CLEARANCE,
     ArmKinematics,
@@ -30,7 +31,6 @@ from ur_rg2_motion.kinematics import (
     arm_on_pedestal,
 )
 from ur_rg2_motion.planning import PICK_POSTURE, gripper_down
-from ur_rg2_sim.robot_model import ARM_JOINTS
 from ur_rg2_sim.world import SimWorld, WorldConfig
 
 CONTROL_RATE = 10.0  # Hz: one action per 0.1 s of simulation time

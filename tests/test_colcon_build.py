@@ -177,7 +177,6 @@ def test_installed_sim_publishes_joint_states(workspace, ros_graph, tmp_path):
     assert 'Traceback' not in Path(log.name).read_text()
 
 
-
 class NodeProcess:
     """An installed node executable running from the workspace, its output kept.
 
@@ -190,10 +189,8 @@ class NodeProcess:
         command = in_workspace(ws, str(ws / 'install' / package / 'lib' / package / executable),
                                '--ros-args', *args)
         self.log = log
-        with log.open('w') as output:
-            if self.terminal:
-                _, slave = self.terminal
-                output = slave
+        with log.open('w') as log_file:
+            output = self.terminal[1] if self.terminal else log_file
             self.process = subprocess.Popen(command, env=env, stdin=output, stdout=output,
                                             stderr=output, start_new_session=True)
 
@@ -234,9 +231,9 @@ def test_nodes_start_without_the_sim_or_pybullet(workspace, ros_graph, tmp_path)
     env = dict(ros_graph.env, PYTHONPATH=os.pathsep.join(
         filter(None, [str(hidden), os.environ.get('PYTHONPATH')])))
     for module in ('pybullet', 'ur_rg2_sim'):
-        probe = subprocess.run(in_workspace(workspace, sys.executable, '-c', f'import {module}'),
+        check = subprocess.run(in_workspace(workspace, sys.executable, '-c', f'import {module}'),
                                env=env, capture_output=True, text=True, timeout=60)
-        assert 'hidden by the test' in probe.stderr, probe.stderr
+        assert 'hidden by the test' in check.stderr, check.stderr
 
     nodes = {}
     try:
@@ -260,7 +257,8 @@ def test_nodes_start_without_the_sim_or_pybullet(workspace, ros_graph, tmp_path)
             node.stop()
         for name, node in nodes.items():
             wait_for(node.exited, 15.0, f'{name} to stop')
-            assert node.process.returncode == 0, f'{name}: exit code {node.process.returncode}'
+            assert node.process.returncode == 0, (
+                f'{name}: exit code {node.process.returncode}\n{node.output()}')
             assert 'Traceback' not in node.output(), node.output()
     finally:
         for node in nodes.values():

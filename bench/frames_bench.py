@@ -28,7 +28,7 @@ class _Listener(SimListener):
     """The sim benchmark's listener, also counting /tf messages."""
 
     def __init__(self, domain_id: int) -> None:
-        from ur_rg2_sim.contract import TF_QOS
+        from ur_rg2_common.contract import TF_QOS
 
         self.tf = 0
         super().__init__(domain_id)
@@ -71,7 +71,7 @@ def _real_time_run() -> list[tuple[str, str, str]]:
 
 
 def _publish_cost() -> list[tuple[str, str, str]]:
-    from ur_rg2_sim.contract import TF_QOS
+    from ur_rg2_common.contract import TF_QOS
     from ur_rg2_sim.frame_publisher import FramePublisher
     from ur_rg2_sim.frames import load_frame_tree, robot_description
     from ur_rg2_sim.world import SimWorld, WorldConfig

@@ -32,11 +32,11 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
+from ur_rg2_common.contract import LATCHED_QOS
+from ur_rg2_common.tf_buffer import FrameLookupError, TransformBuffer, quaternion_from_matrix
 from ur_rg2_motion.kinematics import ArmKinematics, Box, KinematicsError
 from ur_rg2_motion.planning import gripper_down
-from ur_rg2_sim.contract import LATCHED_QOS
 from ur_rg2_sim.robot_model import write_robot_urdf
-from ur_rg2_sim.tf_buffer import FrameLookupError, TransformBuffer, quaternion_from_matrix
 from ur_rg2_sim.world import PEDESTAL_HEIGHT
 
 from bench.processes import bench_env, node_process, spun_node

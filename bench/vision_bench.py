@@ -29,7 +29,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
-from ur_rg2_sim.spin import keep_freed_memory
+from ur_rg2_common.spin import keep_freed_memory
 
 from bench.processes import cpu_seconds, node_process, percentile, rss_mb
 
@@ -49,8 +49,8 @@ QOS = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
 
 def _render_frames() -> list:
     """Return sim frames (rgb, depth, k) of the cases the detector meets, and the ball's."""
+    from ur_rg2_common.contract import ARM_JOINTS
     from ur_rg2_sim.camera import Camera, CameraConfig
-    from ur_rg2_sim.robot_model import ARM_JOINTS
     from ur_rg2_sim.world import SimWorld, WorldConfig
 
     world = SimWorld(WorldConfig())

@@ -20,7 +20,7 @@ os.environ.setdefault('FASTRTPS_DEFAULT_PROFILES_FILE',
 import rclpy  # noqa: E402
 from rclpy.context import Context  # noqa: E402
 from rclpy.node import Node  # noqa: E402
-from ur_rg2_sim.executors import BlockingGroupExecutor  # noqa: E402
+from ur_rg2_common.executors import BlockingGroupExecutor  # noqa: E402
 from ur_rg2_sim.world import SimWorld, WorldConfig  # noqa: E402
 
 # The TCP's orientation with the gripper pointing straight down at the floor.

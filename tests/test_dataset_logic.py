@@ -5,7 +5,7 @@ import math
 
 import numpy as np
 import pytest
-from ur_rg2_sim.camera_pose import optical_rotation
+from ur_rg2_common.camera_pose import optical_rotation
 from ur_rg2_vision.dataset import (
     REACH,
     Camera,

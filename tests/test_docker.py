@@ -258,6 +258,9 @@ def test_build_context_holds_exactly_what_the_dockerfile_copies():
     copied = {path for path in tracked
               if any(path == source or path.startswith(source + '/') for source in sources)}
     assert sent == copied
+    # Every package of the workspace goes into the image, where colcon builds them all.
+    for manifest in (ROOT / 'ros2_ws/src').glob('*/package.xml'):
+        assert str(manifest.relative_to(ROOT)) in copied, manifest
     # Never the pip path's own message packages, caches or the venv.
     for path in ('interfaces/COLCON_IGNORE', 'interfaces/tf2_msgs/package.xml',
                  'requirements.txt', '.venv/bin/python',

@@ -15,11 +15,11 @@ from rclpy.parameter import Parameter
 from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
+from ur_rg2_common.contract import LATCHED_QOS
+from ur_rg2_common.tf_buffer import TransformBuffer
 from ur_rg2_learning.actor import PolicyError
 from ur_rg2_learning.envs import REACH_TOLERANCE
 from ur_rg2_learning.policy_node import PolicyNode
-from ur_rg2_sim.contract import LATCHED_QOS
-from ur_rg2_sim.tf_buffer import TransformBuffer
 
 TIMEOUT = 60.0  # s of wall time on a loaded 2-core machine
 BALL = (0.45, -0.25, 0.03)  # world, on the floor

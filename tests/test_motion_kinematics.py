@@ -4,10 +4,11 @@ import math
 
 import numpy as np
 import pytest
+from ur_rg2_common.contract import ARM_JOINTS
+from ur_rg2_common.tf_buffer import pose_matrix
 from ur_rg2_motion import kinematics
 from ur_rg2_motion.kinematics import ArmKinematics, Box, KinematicsError
-from ur_rg2_sim.robot_model import ARM_JOINTS, ROBOT_MODELS, write_robot_urdf
-from ur_rg2_sim.tf_buffer import pose_matrix
+from ur_rg2_sim.robot_model import ROBOT_MODELS, write_robot_urdf
 from ur_rg2_sim.world import SimWorld, WorldConfig
 
 POSES = 3000

@@ -19,11 +19,11 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
+from ur_rg2_common.contract import LATCHED_QOS
+from ur_rg2_common.tf_buffer import TransformBuffer, pose_matrix, quaternion_from_matrix
 from ur_rg2_motion.kinematics import rotation_angle
 from ur_rg2_motion.motion_node import MotionNode
 from ur_rg2_motion.planning import gripper_down
-from ur_rg2_sim.contract import LATCHED_QOS
-from ur_rg2_sim.tf_buffer import TransformBuffer, pose_matrix, quaternion_from_matrix
 
 WARNING = re.compile(r'\[WARN\] \[[\d.]+\] \[ur_rg2_motion\]: (.*)')
 TIMEOUT = 60.0  # s of wall time for a move on a loaded 2-core machine

@@ -5,10 +5,10 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from ur_rg2_common.tf_buffer import FrameLookupError, TransformBuffer, pose_matrix, transform_point
 from ur_rg2_motion.kinematics import ArmKinematics, Box, KinematicsError
 from ur_rg2_motion.planning import grasp_check, gripper_down, interpolate, plan_move, plan_pick
 from ur_rg2_sim.robot_model import write_robot_urdf
-from ur_rg2_sim.tf_buffer import FrameLookupError, TransformBuffer, pose_matrix, transform_point
 
 PEDESTAL = 0.12
 VELOCITY = np.full(6, 3.15)

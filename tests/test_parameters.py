@@ -16,7 +16,7 @@ from rcl_interfaces.srv import DescribeParameters, GetParameters, SetParameters
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from ur_rg2_sim.parameters import ParameterSpec, as_declared_type, declare_parameters
+from ur_rg2_common.parameters import ParameterSpec, as_declared_type, declare_parameters
 from ur_rg2_vision.viewer_node import ViewerNode
 
 BIN = Path(sys.executable).parent

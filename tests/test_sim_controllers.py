@@ -18,8 +18,7 @@ import pytest
 from rclpy.action import ActionClient
 from test_sim_node import FAST, GRIPPER_DOWN, Probe, run_sim, stamp_ns
 from trajectory_msgs.msg import JointTrajectoryPoint
-from ur_rg2_sim.contract import GRIPPER_ACTION, TRAJECTORY_ACTION
-from ur_rg2_sim.robot_model import ARM_JOINTS
+from ur_rg2_common.contract import ARM_JOINTS, GRIPPER_ACTION, TRAJECTORY_ACTION
 from ur_rg2_sim.world import SimWorld, WorldConfig
 
 SHUFFLED = ('wrist_2_joint', 'elbow_joint', 'shoulder_pan_joint', 'wrist_3_joint',

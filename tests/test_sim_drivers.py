@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pybullet
 import pytest
+from ur_rg2_common.contract import ARM_JOINTS
 from ur_rg2_sim.drivers import ArmDriver, GripperDriver
-from ur_rg2_sim.robot_model import ARM_JOINTS
 from ur_rg2_sim.simulation import NS
 from ur_rg2_sim.trajectory import SUCCESSFUL, Point, validate
 from ur_rg2_sim.world import SimWorld, WorldConfig

@@ -14,10 +14,9 @@ from test_sim_node import FAST, Probe, image_array, latest_frame, run_sim, stamp
 from test_sim_reach import nearest
 from tf2_msgs.msg import TFMessage
 from tf_tree import ur_forward_kinematics
+from ur_rg2_common.contract import ARM_JOINTS, LATCHED_QOS, TF_QOS
+from ur_rg2_common.tf_buffer import TransformBuffer
 from ur_rg2_motion.kinematics import rotation_angle
-from ur_rg2_sim.contract import LATCHED_QOS, TF_QOS
-from ur_rg2_sim.robot_model import ARM_JOINTS
-from ur_rg2_sim.tf_buffer import TransformBuffer
 from ur_rg2_sim.world import SimWorld, WorldConfig
 
 MM = 1e-3

@@ -20,8 +20,8 @@ from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image, JointState
 from std_srvs.srv import Trigger
-from ur_rg2_sim.camera_pose import optical_rotation
-from ur_rg2_sim.robot_model import ARM_JOINTS
+from ur_rg2_common.camera_pose import optical_rotation
+from ur_rg2_common.contract import ARM_JOINTS
 from ur_rg2_sim.sim_node import IMAGE_QOS
 from ur_rg2_sim.world import SimWorld, WorldConfig
 

@@ -11,7 +11,8 @@ from conftest import GRIPPER_DOWN, move_tcp, simulate
 import numpy as np
 import pybullet
 import pytest
-from ur_rg2_sim.robot_model import ARM_JOINTS, TCP_LINK
+from ur_rg2_common.contract import ARM_JOINTS
+from ur_rg2_sim.robot_model import TCP_LINK
 from ur_rg2_sim.world import DEFAULT_BALL_POSITION, PEDESTAL_HEIGHT, SimWorld, WorldConfig
 
 BALL_RADIUS = 0.03

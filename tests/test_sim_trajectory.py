@@ -4,7 +4,7 @@ import math
 
 import numpy as np
 import pytest
-from ur_rg2_sim.robot_model import ARM_JOINTS
+from ur_rg2_common.contract import ARM_JOINTS
 from ur_rg2_sim.trajectory import (
     GOAL_TOLERANCE_VIOLATED,
     INVALID_GOAL,

@@ -11,7 +11,7 @@ from rclpy.exceptions import InvalidParameterValueException
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
-from ur_rg2_sim.robot_model import ARM_JOINTS
+from ur_rg2_common.contract import ARM_JOINTS
 from ur_rg2_teleop.display import Console
 from ur_rg2_teleop.keys_node import KeysNode
 

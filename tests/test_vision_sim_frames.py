@@ -17,8 +17,8 @@ import math
 import numpy as np
 import pybullet
 import pytest
+from ur_rg2_common.contract import ARM_JOINTS
 from ur_rg2_sim.camera import Camera, CameraConfig
-from ur_rg2_sim.robot_model import ARM_JOINTS
 from ur_rg2_sim.world import SimWorld, WorldConfig
 from ur_rg2_vision.detector import BallDetector
 from ur_rg2_vision.localize import locate_first

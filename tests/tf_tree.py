@@ -8,7 +8,7 @@ from collections.abc import Iterable, Sequence
 import math
 
 import numpy as np
-from ur_rg2_sim.tf_buffer import TransformBuffer, pose_matrix
+from ur_rg2_common.tf_buffer import TransformBuffer, pose_matrix
 
 # Universal Robots' published DH parameters (d1, a2, a3, d4, d5, d6), metres.
 UR_DH = {

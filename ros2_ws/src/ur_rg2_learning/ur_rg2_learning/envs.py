@@ -23,6 +23,7 @@ from typing import Any
 import gymnasium as gym
 from gymnasium import spaces
 import numpy as np
+from ur_rg2_common.contract import ARM_JOINTS
 from ur_rg2_motion.kinematics import (
     FLOOR_CLEARANCE,
     ArmKinematics,
@@ -30,8 +31,6 @@ from ur_rg2_motion.kinematics import (
     arm_on_pedestal,
 )
 from ur_rg2_motion.planning import PICK_POSTURE, gripper_down
-from ur_rg2_sim.robot_model import ARM_JOINTS
-from ur_rg2_sim.world import SimWorld, WorldConfig
 
 CONTROL_RATE = 10.0  # Hz: one action per 0.1 s of simulation time
 MAX_STEP = 0.05  # m of TCP motion per step and axis at |action| = 1 (0.5 m/s)
@@ -92,6 +91,10 @@ class UrRg2Env(gym.Env):
     gripper_action = False
 
     def __init__(self, robot_model: str = 'ur5') -> None:
+        # Imported here: the policy node uses this module's task (the constants and functions
+        # above) on a live graph, where no simulator need be installed.
+        from ur_rg2_sim.world import SimWorld, WorldConfig
+
         self._settings = {'robot_model': robot_model}
         self.world = SimWorld(WorldConfig(robot_model=robot_model, ball_radius=BALL_RADIUS,
                                           physics_rate=CONTROL_RATE * self.substeps))

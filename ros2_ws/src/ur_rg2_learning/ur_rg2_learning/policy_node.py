@@ -31,6 +31,10 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, String
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
+from ur_rg2_common.contract import ARM_JOINTS, LATCHED_QOS, TF_QOS, TRAJECTORY_ACTION, WORLD_FRAME
+from ur_rg2_common.parameters import ParameterSpec, declare_parameters
+from ur_rg2_common.spin import run_node
+from ur_rg2_common.tf_buffer import FrameLookupError, TransformBuffer
 from ur_rg2_motion.kinematics import (
     BASE_LINK,
     ArmKinematics,
@@ -38,13 +42,8 @@ from ur_rg2_motion.kinematics import (
     arm_on_pedestal,
     urdf_velocity_limits,
 )
-from ur_rg2_motion.motion_node import ball_in_base_link, trajectory_goal
+from ur_rg2_motion.messages import ball_in_base_link, trajectory_goal
 from ur_rg2_motion.planning import plan_joint_move
-from ur_rg2_sim.contract import LATCHED_QOS, TF_QOS, TRAJECTORY_ACTION, WORLD_FRAME
-from ur_rg2_sim.parameters import ParameterSpec, declare_parameters
-from ur_rg2_sim.robot_model import ARM_JOINTS
-from ur_rg2_sim.spin import run_node
-from ur_rg2_sim.tf_buffer import FrameLookupError, TransformBuffer
 
 from ur_rg2_learning import EPISODE_STEPS, REACH_ID
 from ur_rg2_learning.actor import Actor, PolicyError

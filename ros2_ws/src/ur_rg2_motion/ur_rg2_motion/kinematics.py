@@ -22,7 +22,7 @@ import math
 import xml.etree.ElementTree as ET
 
 import numpy as np
-from ur_rg2_sim.robot_model import ARM_JOINTS
+from ur_rg2_common.contract import ARM_JOINTS
 
 BASE_LINK = 'base_link'
 # Defaults of the checks against the sim's floor and pedestal (the motion node's parameters).

@@ -7,14 +7,13 @@ through that action and the RG2 through ``gripper_controller/gripper_cmd``. The 
 from ``robot_description``, the frames from ``/tf_static`` and ``/tf``.
 """
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 import math
 import sys
 import threading
 import time
 
 from action_msgs.msg import GoalStatus
-from builtin_interfaces.msg import Duration
 from control_msgs.action import FollowJointTrajectory, GripperCommand
 from geometry_msgs.msg import PointStamped, PoseStamped, TransformStamped
 import numpy as np
@@ -26,22 +25,20 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
-from trajectory_msgs.msg import JointTrajectoryPoint
-from ur_rg2_sim.contract import (
+from ur_rg2_common.contract import (
+    ARM_JOINTS,
     GRIPPER_ACTION,
     LATCHED_QOS,
     TF_QOS,
     TRAJECTORY_ACTION,
     WORLD_FRAME,
 )
-from ur_rg2_sim.parameters import ParameterSpec, declare_parameters
-from ur_rg2_sim.robot_model import ARM_JOINTS
-from ur_rg2_sim.spin import run_node
-from ur_rg2_sim.tf_buffer import (
+from ur_rg2_common.parameters import ParameterSpec, declare_parameters
+from ur_rg2_common.spin import run_node
+from ur_rg2_common.tf_buffer import (
     FrameLookupError,
     TransformBuffer,
     pose_matrix,
-    transform_point,
 )
 
 from ur_rg2_motion.kinematics import (
@@ -53,6 +50,7 @@ from ur_rg2_motion.kinematics import (
     arm_on_pedestal,
     urdf_velocity_limits,
 )
+from ur_rg2_motion.messages import ball_in_base_link, trajectory_goal
 from ur_rg2_motion.planning import (
     Trajectory,
     grasp_check,
@@ -478,28 +476,6 @@ class MotionNode(Node):
         return future.result()
 
 
-def ball_in_base_link(tree: TransformBuffer, ball: tuple[float, PointStamped] | None,
-                      timeout: float) -> np.ndarray:
-    """Return the ball's centre in base_link from the latest ``ball/position``.
-
-    ``ball`` is (time.monotonic() when it came, the message), or None before the first.
-    Raises ValueError saying why when it is older than ``timeout`` s, missing, not finite or
-    in a frame the tree cannot place.
-    """
-    if ball is None or time.monotonic() - ball[0] > timeout:
-        raise ValueError(f"no ball seen in the last {timeout:g} s (is it in the camera's "
-                         'view, and is the vision node running?)')
-    point = ball[1]
-    try:
-        to_base = tree.lookup(BASE_LINK, point.header.frame_id)
-    except FrameLookupError as error:
-        raise ValueError(f'the ball cannot be placed in {BASE_LINK}: {error}') from None
-    centre = transform_point(to_base, (point.point.x, point.point.y, point.point.z))
-    if not np.isfinite(centre).all():
-        raise ValueError('the ball position is not finite')
-    return centre
-
-
 # -- messages ------------------------------------------------------------------------------------
 
 def _finite(what: str, values) -> tuple[float, ...]:
@@ -542,19 +518,6 @@ def _limit_tcp_speed(trajectory: Trajectory, arm: ArmKinematics, start: np.ndarr
         return trajectory
     return Trajectory(trajectory.times * (needed / trajectory.duration), trajectory.positions,
                       trajectory.straight)
-
-
-def trajectory_goal(times: Sequence[float], positions: Sequence[Sequence[float]]
-                    ) -> FollowJointTrajectory.Goal:
-    """Return the goal of the six arm joints at ``positions`` (rad) ``times`` s from now."""
-    goal = FollowJointTrajectory.Goal()
-    goal.trajectory.joint_names = list(ARM_JOINTS)
-    for t, point in zip(times, positions):
-        ns = round(float(t) * 1e9)
-        goal.trajectory.points.append(JointTrajectoryPoint(
-            positions=[float(p) for p in point],
-            time_from_start=Duration(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)))
-    return goal
 
 
 def main(args: list[str] | None = None) -> int:

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import math
 
 import numpy as np
-from ur_rg2_sim.tf_buffer import pose_matrix, quaternion_from_matrix
+from ur_rg2_common.tf_buffer import pose_matrix, quaternion_from_matrix
 
 from ur_rg2_motion.kinematics import (
     ArmKinematics,

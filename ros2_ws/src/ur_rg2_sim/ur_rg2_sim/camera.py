@@ -16,8 +16,8 @@ import math
 import cv2
 import numpy as np
 import pybullet
+from ur_rg2_common.camera_pose import optical_rotation
 
-from ur_rg2_sim.camera_pose import optical_rotation
 from ur_rg2_sim.world import SimWorld
 
 # A Kinect v1 sees 0.4-8 m; nearer and farther the renderer clips.

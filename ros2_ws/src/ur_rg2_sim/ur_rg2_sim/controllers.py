@@ -19,10 +19,9 @@ from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.action.server import ServerGoalHandle
 from rclpy.node import Node
 from rclpy.task import Task
+from ur_rg2_common.contract import ARM_JOINTS, GRIPPER_ACTION, TRAJECTORY_ACTION
 
-from ur_rg2_sim.contract import GRIPPER_ACTION, TRAJECTORY_ACTION
 from ur_rg2_sim.drivers import ArmDriver, ArmRun, Ended, GripperDriver, GripperRun
-from ur_rg2_sim.robot_model import ARM_JOINTS
 from ur_rg2_sim.simulation import NS, SimulationLoop
 from ur_rg2_sim.trajectory import INVALID_GOAL, INVALID_JOINTS, Point, Tolerance, TrajectoryError
 from ur_rg2_sim.trajectory import validate as validate_trajectory

@@ -12,8 +12,8 @@ from dataclasses import dataclass, field
 from typing import Optional
 
 import numpy as np
+from ur_rg2_common.contract import ARM_JOINTS
 
-from ur_rg2_sim.robot_model import ARM_JOINTS
 from ur_rg2_sim.simulation import NS
 from ur_rg2_sim.trajectory import (
     INVALID_GOAL,

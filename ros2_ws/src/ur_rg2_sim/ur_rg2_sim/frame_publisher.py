@@ -13,8 +13,8 @@ from geometry_msgs.msg import PoseStamped, TransformStamped
 from rclpy.node import Node
 from std_msgs.msg import String
 from tf2_msgs.msg import TFMessage
+from ur_rg2_common.contract import LATCHED_QOS, TF_QOS, WORLD_FRAME
 
-from ur_rg2_sim.contract import LATCHED_QOS, TF_QOS, WORLD_FRAME
 from ur_rg2_sim.frames import FrameTree, camera_transforms
 from ur_rg2_sim.serialized import SerializedMessage
 

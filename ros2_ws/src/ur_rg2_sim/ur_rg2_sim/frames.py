@@ -23,10 +23,9 @@ import xml.etree.ElementTree as ET
 
 import numpy as np
 import pybullet
-
-from ur_rg2_sim.camera_pose import optical_rotation
-from ur_rg2_sim.contract import WORLD_FRAME
-from ur_rg2_sim.tf_buffer import quaternion_from_matrix
+from ur_rg2_common.camera_pose import optical_rotation
+from ur_rg2_common.contract import WORLD_FRAME
+from ur_rg2_common.tf_buffer import quaternion_from_matrix
 
 Vector = tuple[float, float, float]
 Quaternion = tuple[float, float, float, float]  # x, y, z, w

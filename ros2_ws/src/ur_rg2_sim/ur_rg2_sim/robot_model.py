@@ -22,14 +22,6 @@ import xml.etree.ElementTree as ET
 
 import numpy as np
 
-ARM_JOINTS = (
-    'shoulder_pan_joint',
-    'shoulder_lift_joint',
-    'elbow_joint',
-    'wrist_1_joint',
-    'wrist_2_joint',
-    'wrist_3_joint',
-)
 GRIPPER_JOINTS = ('rg2_left_finger_joint', 'rg2_right_finger_joint')
 ROBOT_MODELS = ('ur5', 'ur3')
 

@@ -21,17 +21,18 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image, JointState
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
+from ur_rg2_common.contract import ARM_JOINTS
+from ur_rg2_common.parameters import declare_parameters
+from ur_rg2_common.spin import run_node
 
 from ur_rg2_sim.camera import Camera, CameraConfig, Frame
 from ur_rg2_sim.commands import CommandError, finite_vector, in_range, joint_targets
 from ur_rg2_sim.controllers import Controllers
 from ur_rg2_sim.frame_publisher import FramePublisher
 from ur_rg2_sim.frames import OPTICAL_FRAME, load_frame_tree, robot_description
-from ur_rg2_sim.parameters import declare_parameters
-from ur_rg2_sim.robot_model import ARM_JOINTS, ROBOT_MODELS, RobotModelError
+from ur_rg2_sim.robot_model import ROBOT_MODELS, RobotModelError
 from ur_rg2_sim.serialized import SerializedMessage
 from ur_rg2_sim.simulation import NS, Schedule, SimulationLoop
-from ur_rg2_sim.spin import run_node
 from ur_rg2_sim.world import DEFAULT_BALL_POSITION, JointStateSample, SimWorld, WorldConfig
 
 # Gripper and reset services give up after this much simulation time (the contract's 5 s).

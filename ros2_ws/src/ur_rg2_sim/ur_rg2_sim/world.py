@@ -13,9 +13,9 @@ import tempfile
 from typing import Optional
 
 import pybullet
+from ur_rg2_common.contract import ARM_JOINTS
 
 from ur_rg2_sim.robot_model import (
-    ARM_JOINTS,
     GRIPPER_JOINTS,
     RG2_MAX_FINGER_SPEED,
     RG2_MAX_FORCE,

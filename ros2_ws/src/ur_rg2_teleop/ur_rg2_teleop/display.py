@@ -6,7 +6,7 @@ import sys
 import threading
 from typing import TextIO
 
-from ur_rg2_sim.robot_model import ARM_JOINTS
+from ur_rg2_common.contract import ARM_JOINTS
 
 SHORT_NAMES = ('pan', 'lift', 'elbow', 'wrist1', 'wrist2', 'wrist3')
 

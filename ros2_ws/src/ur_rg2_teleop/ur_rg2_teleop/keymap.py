@@ -5,7 +5,7 @@ import enum
 import math
 from typing import Union
 
-from ur_rg2_sim.robot_model import ARM_JOINTS
+from ur_rg2_common.contract import ARM_JOINTS
 
 MIN_STEP_DEG = 0.5
 MAX_STEP_DEG = 45.0

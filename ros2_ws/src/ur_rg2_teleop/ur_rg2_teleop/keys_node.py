@@ -19,8 +19,8 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
-from ur_rg2_sim.parameters import ParameterSpec, declare_parameters
-from ur_rg2_sim.robot_model import ARM_JOINTS
+from ur_rg2_common.contract import ARM_JOINTS
+from ur_rg2_common.parameters import ParameterSpec, declare_parameters
 
 from ur_rg2_teleop.display import Console, SettleWatcher, arm_values, format_angles
 from ur_rg2_teleop.keymap import (

@@ -29,7 +29,7 @@ from typing import TextIO
 
 import cv2
 import numpy as np
-from ur_rg2_sim.camera_pose import optical_rotation
+from ur_rg2_common.camera_pose import optical_rotation
 
 from ur_rg2_vision.frame_store import encode_png, publish_new, remove, write_temporary
 

@@ -29,11 +29,11 @@ from rclpy.task import Future
 from sensor_msgs.msg import Image, JointState
 from std_msgs.msg import Bool, String
 from tf2_msgs.msg import TFMessage
-from ur_rg2_sim.camera_pose import optical_rotation
-from ur_rg2_sim.contract import LATCHED_QOS, WORLD_FRAME
-from ur_rg2_sim.parameters import ParameterSpec, declare_parameters
-from ur_rg2_sim.spin import run_node
-from ur_rg2_sim.tf_buffer import FrameLookupError, TransformBuffer, transform_point
+from ur_rg2_common.camera_pose import optical_rotation
+from ur_rg2_common.contract import LATCHED_QOS, WORLD_FRAME
+from ur_rg2_common.parameters import ParameterSpec, declare_parameters
+from ur_rg2_common.spin import run_node
+from ur_rg2_common.tf_buffer import FrameLookupError, TransformBuffer, transform_point
 
 from ur_rg2_vision.ros_image import image_to_rgb
 from ur_rg2_vision.viewer_web import FrameHub, ViewerServer, ball_summary, joint_summary

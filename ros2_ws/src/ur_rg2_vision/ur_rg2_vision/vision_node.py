@@ -31,8 +31,8 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
-from ur_rg2_sim.parameters import ParameterSpec, declare_parameters
-from ur_rg2_sim.spin import keep_freed_memory, run_node
+from ur_rg2_common.parameters import ParameterSpec, declare_parameters
+from ur_rg2_common.spin import keep_freed_memory, run_node
 
 from ur_rg2_vision.detector import (
     DEFAULT_MIN_RADIUS_PX,

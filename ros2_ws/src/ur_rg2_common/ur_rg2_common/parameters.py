@@ -8,7 +8,7 @@ same number, at start-up and at run time, while the parameter stays a double (``
 describe`` says so). Any other kind (a string for a number) is still refused by rclpy, with
 its reason.
 
-Used by all three packages, so it lives in the one they all depend on.
+Used by every node of the graph, so it lives in the package they all depend on.
 """
 
 from collections.abc import Iterable, Sequence

@@ -6,8 +6,9 @@ between (``base_link``, the camera frames, ``world``, ``rg2_tcp``) are fixed rel
 other or move with the arm, so no interpolation in time is done: a lookup uses the latest
 transforms. Plain Python, no ROS imports; messages are read by their fields only.
 
-Used by the motion node and the viewer, so it lives in the package every node depends on; so do
-the conversions between xyzw quaternions and matrices (the sim's frames and motion use them).
+Used by the motion, policy and viewer nodes, so it lives in the package every node depends on;
+so do the conversions between xyzw quaternions and matrices (the sim's frames and motion use
+them).
 """
 
 from collections.abc import Iterable, Sequence

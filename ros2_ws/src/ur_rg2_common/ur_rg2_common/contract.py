@@ -1,13 +1,22 @@
-"""Names and QoS profiles of the sim's public interface that its clients share.
+"""Names and QoS profiles of the graph's public interface that its nodes share.
 
-The sim serves these and the motion, policy and viewer nodes (and the tests and benchmarks)
-use them; ``../shared/INTERFACES.md`` is where they are defined. Only rclpy, so any client
-can import this without loading the simulation.
+The sim (or a real robot's driver) serves these and the motion, policy, teleop and viewer nodes
+(and the tests and benchmarks) use them; ``../shared/INTERFACES.md`` is where they are defined.
+Only rclpy, so any client can import this without loading the simulation.
 """
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 WORLD_FRAME = 'world'
+# The six arm joints, in the order of the contract's joint_states (and of UR's driver).
+ARM_JOINTS = (
+    'shoulder_pan_joint',
+    'shoulder_lift_joint',
+    'elbow_joint',
+    'wrist_1_joint',
+    'wrist_2_joint',
+    'wrist_3_joint',
+)
 TRAJECTORY_ACTION = 'joint_trajectory_controller/follow_joint_trajectory'
 GRIPPER_ACTION = 'gripper_controller/gripper_cmd'
 

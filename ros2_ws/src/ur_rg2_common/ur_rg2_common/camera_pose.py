@@ -1,7 +1,7 @@
 """The camera's orientation from its pose parameters. Plain numpy: no pybullet, no ROS.
 
-Kept apart from camera.py so that nodes converting between the optical and world frames (the
-viewer, the dataset tool) need not load pybullet.
+Kept apart from the sim's camera.py so that nodes converting between the optical and world
+frames (the viewer, the dataset tool) need not load pybullet.
 """
 
 from collections.abc import Sequence

@@ -10,7 +10,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.logging import get_logger
 from rclpy.node import Node
 
-from ur_rg2_sim.executors import BlockingGroupExecutor
+from ur_rg2_common.executors import BlockingGroupExecutor
 
 N = TypeVar('N', bound=Node)
 

@@ -1,9 +1,9 @@
-"""ur_rg2_sim.spin.keep_freed_memory: image-sized buffers are reused, not faulted in anew."""
+"""ur_rg2_common.spin.keep_freed_memory: image-sized buffers are reused, not faulted in anew."""
 
 import resource
 
 import numpy as np
-from ur_rg2_sim.spin import keep_freed_memory
+from ur_rg2_common.spin import keep_freed_memory
 
 IMAGE_BYTES = 640 * 480 * 3
 

@@ -9,7 +9,13 @@ import sys
 import termios
 
 import pytest
-from ur_rg2_bringup.graph import NODES, PARAMETER_ARGUMENTS, describe_exit, route_parameters
+from ur_rg2_bringup.graph import (
+    NODES,
+    PARAMETER_ARGUMENTS,
+    describe_exit,
+    graph_nodes,
+    route_parameters,
+)
 from ur_rg2_bringup.run import UsageError, parse_args
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -49,6 +55,18 @@ def test_the_launch_file_starts_sim_vision_motion_and_viewer():
     assert [(node.package, node.executable, node.node_name) for node in NODES] == [
         ('ur_rg2_sim', 'sim', 'ur_rg2_sim'), ('ur_rg2_vision', 'vision', 'ur_rg2_vision'),
         ('ur_rg2_motion', 'motion', 'ur_rg2_motion'), ('ur_rg2_vision', 'viewer', 'ur_rg2_viewer')]
+
+
+def test_use_sim_false_leaves_the_sim_out_and_its_parameters_unrouted():
+    assert graph_nodes('True') == NODES
+    nodes = graph_nodes('false')
+    assert [node.name for node in nodes] == ['vision', 'motion', 'viewer']
+    routed, unknown = route_parameters({'camera_rate': '15', 'ball_radius': '0.05',
+                                        'use_sim': 'false'}, nodes)
+    assert routed['vision'] == ['-p', 'ball_radius:=0.05']
+    assert unknown == ["parameter 'camera_rate' is for sim, which is not started"]
+    with pytest.raises(ValueError, match='expected true or false'):
+        graph_nodes('maybe')
 
 
 def test_arguments_go_to_the_nodes_that_declare_them_or_to_the_one_named():

@@ -221,3 +221,24 @@ def test_a_launch_argument_of_the_wrong_type_ends_with_the_nodes_reason(tmp_path
                      r"\[ur_rg2_sim\]: invalid parameter: .*'camera_rate'.*'fast'.*; stopping "
                      r'the graph', output), output
     assert 'Traceback' not in output
+
+
+def test_use_sim_false_starts_the_graph_without_the_simulator(tmp_path):
+    env = dict(os.environ, ROS_DOMAIN_ID=str(next_domain_id()),
+               ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+    launched = Launched(['ros2', 'launch', 'ur_rg2_bringup', 'graph.launch.py', 'use_sim:=false',
+                         'port:=0', f'frames_dir:={tmp_path}'], env, tmp_path / 'launch.log')
+    try:
+        wait_for(lambda: len(re.findall(r'process started with pid', launched.output)) == 3
+                 or launched.process.poll() is not None, 120.0, 'three nodes')
+        wait_for(lambda: 'live view of' in launched.output, 120.0, 'the viewer')
+        assert launched.process.poll() is None, launched.output
+        launched.ctrl_c()
+        assert launched.wait(timeout=60) == 0
+    finally:
+        launched.kill()
+    output = launched.output
+    assert '[sim-' not in output
+    for name in ('vision', 'motion', 'viewer'):
+        assert re.search(rf'\[{name}-\d+\]: process has finished cleanly', output), output
+    assert 'Traceback' not in output

@@ -1,4 +1,4 @@
-"""The UR + RG2 node graph: sim, vision, motion and viewer.
+"""The UR + RG2 node graph: sim, vision, motion and viewer (``use_sim:=false``: without sim).
 
     ros2 launch ur_rg2_bringup graph.launch.py [NAME:=VALUE ...] [NODE:NAME:=VALUE ...]
 
@@ -25,10 +25,11 @@ import launch.logging
 from launch_ros.actions import Node
 from ur_rg2_bringup.graph import (
     NAMESPACE_ARGUMENT,
-    NODES,
     PARAMETER_ARGUMENTS,
     ROS_ARGS_ARGUMENT,
+    USE_SIM_ARGUMENT,
     describe_exit,
+    graph_nodes,
     route_parameters,
 )
 
@@ -42,6 +43,9 @@ def generate_launch_description() -> LaunchDescription:
     arguments = [DeclareLaunchArgument(argument.name, default_value='',
                                        description=argument.description)
                  for argument in PARAMETER_ARGUMENTS]
+    arguments.append(DeclareLaunchArgument(USE_SIM_ARGUMENT[0], default_value='true',
+                                           description=USE_SIM_ARGUMENT[1],
+                                           choices=['true', 'false', 'True', 'False']))
     arguments += [DeclareLaunchArgument(name, default_value='', description=description)
                   for name, description in (NAMESPACE_ARGUMENT, ROS_ARGS_ARGUMENT)]
     return LaunchDescription([*arguments, OpaqueFunction(function=_graph)])
@@ -51,13 +55,14 @@ def _graph(context: LaunchContext) -> list:
     logger = launch.logging.get_logger('graph.launch.py')
     given = {name: value for name, value in context.launch_configurations.items()
              if value != ''}
-    ros_arguments, unknown = route_parameters(given)
+    nodes = graph_nodes(given[USE_SIM_ARGUMENT[0]])
+    ros_arguments, unknown = route_parameters(given, nodes)
     for message in unknown:
         logger.warning(f'{message}: ignored')
     extra = shlex.split(given.get(ROS_ARGS_ARGUMENT[0], ''))
     last_errors: dict[str, str] = {}
     actions: list = []
-    for spec in NODES:
+    for spec in nodes:
         node = Node(package=spec.package, executable=spec.executable, name=spec.node_name,
                     namespace=given.get(NAMESPACE_ARGUMENT[0], ''), output='screen',
                     ros_arguments=ros_arguments[spec.name] + extra)

@@ -126,6 +126,8 @@ PARAMETER_ARGUMENTS: tuple[ParameterArgument, ...] = (
 )
 
 # Launch arguments that are not parameters.
+USE_SIM_ARGUMENT = ('use_sim', 'Start the simulator (true), or leave it out (false) for a real '
+                    'arm and camera whose drivers provide its topics and actions')
 NAMESPACE_ARGUMENT = ('namespace', 'Namespace of every node (default: none)')
 ROS_ARGS_ARGUMENT = ('ros_args', "More ROS arguments for every node, as after --ros-args (e.g. "
                      "'--log-level debug')")
@@ -158,7 +160,8 @@ def route_parameters(assignments: Mapping[str, str],
     """
     by_parameter = {argument.name: argument for argument in PARAMETER_ARGUMENTS}
     started = {node.name for node in nodes}
-    other_arguments = {NAMESPACE_ARGUMENT[0], ROS_ARGS_ARGUMENT[0], *_LAUNCH_SETTINGS}
+    other_arguments = {USE_SIM_ARGUMENT[0], NAMESPACE_ARGUMENT[0], ROS_ARGS_ARGUMENT[0],
+                       *_LAUNCH_SETTINGS}
     ros_arguments: dict[str, list[str]] = {node.name: [] for node in nodes}
     unknown: list[str] = []
     for key, value in assignments.items():
@@ -182,12 +185,25 @@ def route_parameters(assignments: Mapping[str, str],
         argument = by_parameter.get(key)
         receivers = [name for name in argument.nodes if name in started] if argument else []
         if not receivers:
-            unknown.append(f'no node declares parameter {key!r}'
-                           + _did_you_mean(key, list(by_parameter)))
+            if argument is None:
+                unknown.append(f'no node declares parameter {key!r}'
+                               + _did_you_mean(key, list(by_parameter)))
+            else:
+                unknown.append(f'parameter {key!r} is for {", ".join(argument.nodes)}, '
+                               'which is not started')
             continue
         for name in receivers:
             ros_arguments[name] += ['-p', f'{key}:={value}']
     return ros_arguments, unknown
+
+
+def graph_nodes(use_sim: str) -> tuple[GraphNode, ...]:
+    """Return the nodes to start for a ``use_sim`` launch argument (true or false, any case)."""
+    if use_sim.lower() == 'true':
+        return NODES
+    if use_sim.lower() == 'false':
+        return tuple(node for node in NODES if node.package != 'ur_rg2_sim')
+    raise ValueError(f'use_sim:={use_sim!r}: expected true or false')
 
 
 def describe_exit(returncode: int) -> str:

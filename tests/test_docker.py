@@ -196,10 +196,11 @@ def test_image_and_readme_install_requirements_ros_the_same_way():
 def test_ros_pins_are_requirements_txt_with_numpy_1():
     pip_path, ros_path = pins(ROOT / 'requirements.txt'), pins(ROS_PINS)
     # Everything but what the ROS install itself provides (ROS from apt, with its message
-    # packages, so nothing of the pip path's message build: catkin-pkg; Ubuntu's setuptools,
-    # which colcon builds with), and no package twice.
+    # packages, so nothing of the pip path's message build: catkin-pkg; ros2cli and launch with
+    # what they import; Ubuntu's setuptools, which colcon builds with), and no package twice.
+    provided = {'setuptools', 'catkin-pkg', 'osrf-pycommon', 'psutil', 'pyyaml', 'packaging'}
     assert set(ros_path) == {name for name in pip_path if not name.startswith('ros-jazzy-')
-                             and name not in ('setuptools', 'catkin-pkg')}
+                             and name not in provided}
     assert len(ros_path) == len([line for line in ROS_PINS.read_text().splitlines()
                                  if line.strip() and not line.startswith('#')])
     differ = {name for name in ros_path if ros_path[name] != pip_path[name]}

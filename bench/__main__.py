@@ -16,7 +16,7 @@ BENCHMARKS = ('sim', 'frames', 'controllers', 'teleop', 'vision', 'viewer', 'dat
 
 
 def print_table(rows: list[tuple[str, str, str]]) -> None:
-    """Print rows as a Markdown table (ready to paste into the README)."""
+    """Print rows as a Markdown table (ready to paste into docs/benchmark.md)."""
     header = ('metric', 'measured', 'target')
     widths = [max(len(str(row[i])) for row in [header, *rows]) for i in range(3)]
     for row in [header, tuple('-' * w for w in widths), *rows]:

@@ -1,4 +1,4 @@
-"""Make the README's picture of a labelled data set: a grid of samples with their boxes drawn.
+"""Make the picture of a labelled data set in docs/reference.md: samples with their boxes drawn.
 
 Reads a data set written by ``dataset`` (images/, labels/), takes the first COUNT samples in
 name order (with the first one whose label is empty among them, if any), draws each YOLO box

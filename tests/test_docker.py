@@ -175,7 +175,7 @@ def test_image_installs_ros_messages_from_apt():
                     f'{manifest.parent.name} needs {key}: add its apt package to the Dockerfile')
 
 
-def test_image_and_readme_install_requirements_ros_the_same_way():
+def test_image_and_docs_install_requirements_ros_the_same_way():
     dockerfile = DOCKERFILE.read_text()
     assert 'COPY requirements-ros.txt /tmp/requirements-ros.txt' in dockerfile
     assert re.search(r'pip install [^&]*-r /tmp/requirements-ros\.txt', dockerfile)
@@ -185,9 +185,9 @@ def test_image_and_readme_install_requirements_ros_the_same_way():
     assert source_builds() == {'pybullet'}
     # No version written into the Dockerfile itself that could drift from the pins.
     assert not re.findall(r'\b[A-Za-z][\w.-]*==\d', dockerfile)
-    # The README's colcon recipe over a ROS install: the same file, the same options.
-    readme = (ROOT / 'README.md').read_text()
-    recipe = readme[readme.index('## The ROS way'):readme.index('### Docker')]
+    # The docs' colcon recipe over a ROS install: the same file, the same options.
+    page = (ROOT / 'docs' / 'ros-install.md').read_text()
+    recipe = page[page.index('# The ROS way'):page.index('## Docker')]
     assert re.search(r'pip install [^\n]*-r requirements-ros\.txt', recipe)
     assert pip_install_options(recipe) == options - {'--no-cache-dir'}
     assert 'requirements.txt' not in recipe.split('```')[1], 'the recipe would get NumPy 2'
@@ -237,7 +237,7 @@ def test_source_builds_have_no_cp312_wheel_and_do_not_require_numpy_2(tmp_path):
         run = resolve(tmp_path, pin, no_deps=True)
         # Compiled in the image only because there is no wheel: if one appears, use it.
         assert run.returncode != 0 and 'No matching distribution' in run.stderr, (
-            f'{pin} has a cp312 wheel now: drop it from --no-binary in the Dockerfile and README')
+            f'{pin} has a cp312 wheel now: drop it from --no-binary in the Dockerfile and docs')
         # The sdist's requirements are those of the same release's wheels (setup.py declares
         # them for every Python); read them from the cp311 wheel's metadata.
         run = resolve(tmp_path, pin, python='3.11', no_deps=True)

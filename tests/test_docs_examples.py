@@ -1,4 +1,4 @@
-"""The README's listener example, run as a user runs it, against a running sim."""
+"""The docs' example programs: the listener run as a user runs it, against a running sim."""
 
 import math
 import os
@@ -70,11 +70,11 @@ def test_listener_prints_degrees_twice_a_second_and_ends_cleanly_on_ctrl_c(ros_g
     assert 'Traceback' not in (out + err).decode()
 
 
-def test_readme_shows_the_listener_example_as_it_is():
-    readme = (ROOT / 'README.md').read_text()
-    assert f'```python\n{LISTENER.read_text()}```\n' in readme
+def test_docs_show_the_listener_example_as_it_is():
+    page = (ROOT / 'docs' / 'running.md').read_text()
+    assert f'```python\n{LISTENER.read_text()}```\n' in page
 
 
-def test_readme_shows_the_tool_command_example_as_it_is():
-    readme = (ROOT / 'README.md').read_text()
-    assert f'```python\n{TOOL_COMMAND.read_text()}```\n' in readme
+def test_docs_show_the_tool_command_example_as_it_is():
+    page = (ROOT / 'docs' / 'cartesian-and-pick.md').read_text()
+    assert f'```python\n{TOOL_COMMAND.read_text()}```\n' in page

@@ -89,7 +89,7 @@ def non_blank_frame(driver: webdriver.Chrome) -> list[np.ndarray]:
 
 
 def test_page_follows_the_simulator(ros_graph, browser):
-    # scripts/viewer-screenshot saves the README's picture at the default camera size; the
+    # scripts/viewer-screenshot saves docs/reference.md's picture at the default camera size; the
     # test alone renders a smaller image to leave the two cores to the browser and the nodes.
     screenshot = os.environ.get('VIEWER_SCREENSHOT')
     width, height = (640, 480) if screenshot else (320, 240)

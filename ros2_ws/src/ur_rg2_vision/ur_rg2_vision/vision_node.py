@@ -47,7 +47,7 @@ from ur_rg2_vision.ros_image import camera_matrix, image_to_depth, image_to_rgb,
 
 NODE_NAME = 'ur_rg2_vision'
 
-# Reliable, because across processes best effort loses most 640x480 frames (see the README);
+# Reliable, because across processes best effort loses most 640x480 frames (see docs/design.md);
 # a short keep-last queue, because a late frame is worth less than the next one.
 _IMAGE_QOS = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
 _PENDING_FRAMES = 4  # colour frames waiting for their depth (~130 ms at 30 Hz)

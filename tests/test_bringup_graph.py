@@ -120,6 +120,7 @@ def test_in_a_terminal_keys_runs_in_the_foreground_and_quitting_stops_all(
         os.close(terminal)
     output = log_path.read_text()
     assert 'keyboard teleop' in output
+    assert 'bringup: keys quit: stopping the graph' in output
     assert 'process has died' not in output
     assert 'Traceback' not in output
     for name, pid in re.findall(r'\[INFO\] \[(\w+)-\d+\]: process started with pid \[(\d+)\]',

@@ -171,6 +171,8 @@ class _Graph:
                     keys_failure = f'keys {describe_exit(self._keys.returncode)}'
                 self._keys = None
                 if not self._stop_requests:
+                    # launch then says "user interrupted with ctrl-c (SIGINT)": this is why.
+                    print('bringup: keys quit: stopping the graph', file=sys.stderr, flush=True)
                     self._on_stop_signal(signal.SIGINT, None)
         self._stop_keys()
         if keys_failure is not None:

@@ -1,6 +1,7 @@
 """Run every benchmark and print one table: ``python -m bench [name ...]``.
 
-Names: sim, frames, controllers, teleop, vision, viewer, dataset, motion, learning, setup
+Names: sim, frames, controllers, teleop, vision, detector, viewer, dataset, motion, learning,
+setup
 (default: all).
 Each module's ``run()`` returns rows of (metric, measured, target). The numbers mean most on
 an otherwise idle machine.
@@ -11,8 +12,8 @@ import importlib
 import sys
 import time
 
-BENCHMARKS = ('sim', 'frames', 'controllers', 'teleop', 'vision', 'viewer', 'dataset',
-              'motion', 'learning', 'setup')
+BENCHMARKS = ('sim', 'frames', 'controllers', 'teleop', 'vision', 'detector', 'viewer',
+              'dataset', 'motion', 'learning', 'setup')
 
 
 def print_table(rows: list[tuple[str, str, str]]) -> None:

@@ -1,6 +1,7 @@
 """Node ``ur_rg2_vision``: the ball's 3D position from the RGB-D camera, and frame saving.
 
-ROS wiring only; the work is done by :mod:`ur_rg2_vision.detector` (colour + shape),
+ROS wiring only; the work is done by :mod:`ur_rg2_vision.detector` (colour + shape) or, with
+``detector:=learned``, :mod:`ur_rg2_vision.learned` (a YOLO model, ONNX),
 :mod:`ur_rg2_vision.localize` (depth) and :mod:`ur_rg2_vision.frame_store` (PNG files).
 
 Each colour image is searched for the ball; its depth image (same stamp, before or after it)

@@ -9,7 +9,10 @@ format=onnx``), 1 x (4 + classes) x N, and its transpose 1 x N x (4 + classes); 
 around it, as ultralytics feeds it), class scores 0-1. A user's own model of that layout drops
 in with a ``detector.json`` beside it.
 
-The box becomes a :class:`~ur_rg2_vision.detector.Detection` like the colour detector's: the
+Each box gives two candidates, tried in turn by :func:`ur_rg2_vision.localize.locate_first`:
+the ball's outline found in and around the box by the ball's own colour (the median hue of
+the box's middle) with the colour detector's circle fit, sharper than the model's box; and the
+box itself as a :class:`~ur_rg2_vision.detector.Detection` like the colour detector's: the
 sphere whose outline has this box (off the optical axis an ellipse, see
 :func:`ur_rg2_vision.dataset.sphere_box`) gives the image of its centre and its radius as seen on
 the axis; its pixels are the disc inside the box, and :mod:`ur_rg2_vision.localize` fits the
@@ -25,7 +28,7 @@ import cv2
 import numpy as np
 
 from ur_rg2_vision.dataset import sphere_box
-from ur_rg2_vision.detector import Detection, least_squares_step
+from ur_rg2_vision.detector import BallDetector, Detection, HsvRange, least_squares_step
 
 MODEL_FILE = 'model.onnx'
 SETTINGS_FILE = 'detector.json'
@@ -34,6 +37,11 @@ _PAD_GREY = 114  # ultralytics' letterbox fill
 _MAX_CANDIDATES = 100  # boxes over the threshold kept for non-maximum suppression
 _FIT_ITERATIONS = 6
 _BORDER_PX = 1.0  # a box side this near the image border is cut off there, not the outline
+# The ball's colour, taken from the middle of the model's box: hue +- this, at least this much
+# saturation (OpenCV's 8-bit HSV) for a colour to go by, and value (its shaded side).
+_HUE_SPAN = 10
+_MIN_SATURATION = 60
+_MIN_VALUE = 25
 
 
 class ModelError(ValueError):
@@ -138,10 +146,47 @@ class LearnedBallDetector:
             raise ValueError(f'expected an RGB uint8 image, got {rgb.dtype} {rgb.shape}')
         detections = []
         for box in self.model.boxes(rgb):
-            detection = box_detection(box, rgb.shape[1], rgb.shape[0], k)
-            if detection.radius >= self.min_radius_px:
-                detections.append(detection)
+            # The outline in the ball's own colour first: sharper than the model's box.
+            for detection in (_colour_outline(rgb, k, box, self.min_radius_px),
+                              box_detection(box, rgb.shape[1], rgb.shape[0], k)):
+                if detection is not None and detection.radius >= self.min_radius_px:
+                    detections.append(detection)
         return detections
+
+
+def _colour_outline(rgb: np.ndarray, k: np.ndarray | None,
+                    box: tuple[float, float, float, float, float],
+                    min_radius_px: float) -> Detection | None:
+    """Return the ball's outline in the box found by its colour, None when there is none.
+
+    The colour: the median hue and saturation of the box's middle; the colour detector's
+    circle fit then finds the outline in the box grown by a quarter (the model's box is a few
+    pixels off). A ball of little saturation (grey, white) has no hue to go by.
+    """
+    u0, v0, u1, v1, _ = box
+    half_w, half_h = (u1 - u0) / 2, (v1 - v0) / 2
+    cu, cv_ = (u0 + u1) / 2, (v0 + v1) / 2
+    core = rgb[int(cv_ - half_h / 3):int(cv_ + half_h / 3) + 1,
+               int(cu - half_w / 3):int(cu + half_w / 3) + 1]
+    if core.size == 0:
+        return None
+    hsv = cv2.cvtColor(np.ascontiguousarray(core), cv2.COLOR_RGB2HSV).reshape(-1, 3)
+    saturation = float(np.median(hsv[:, 1]))
+    if saturation < _MIN_SATURATION:
+        return None
+    # The median hue on the circle of hues: about the hue farthest from most of them.
+    hue = hsv[:, 0].astype(int)
+    pivot = (int(np.median((hue + 90) % 180)) + 90) % 180
+    lower = ((pivot - _HUE_SPAN) % 180, int(saturation * 0.4), _MIN_VALUE)
+    upper = ((pivot + _HUE_SPAN) % 180, 255, 255)
+    detector = BallDetector(HsvRange(lower, upper), min_radius_px)
+    grow_w, grow_h = half_w / 2 + 2, half_h / 2 + 2
+    detection = detector.find_in(rgb, k, (int(u0 - grow_w), int(v0 - grow_h),
+                                          int(math.ceil(u1 + grow_w)),
+                                          int(math.ceil(v1 + grow_h))))
+    if detection is None or not (u0 <= detection.u + 0.5 <= u1 and v0 <= detection.v + 0.5 <= v1):
+        return None
+    return detection
 
 
 def box_detection(box: tuple[float, float, float, float, float], width: int, height: int,

@@ -35,6 +35,7 @@ SETTINGS_FILE = 'detector.json'
 SHIPPED_MODEL = Path(__file__).resolve().parent / 'models' / 'ball'
 _PAD_GREY = 114  # ultralytics' letterbox fill
 _MAX_CANDIDATES = 100  # boxes over the threshold kept for non-maximum suppression
+_MAX_BOXES = 6  # the most confident boxes after it: bounds the work per frame
 _FIT_ITERATIONS = 6
 _BORDER_PX = 1.0  # a box side this near the image border is cut off there, not the outline
 # The ball's colour, taken from the middle of the model's box: hue +- this, at least this much
@@ -119,7 +120,7 @@ class BallModel:
              zip(u0, v0, w / scale, h / scale)], scores[keep].tolist(), self.confidence,
             self.iou)
         result = []
-        for i in np.asarray(found, dtype=int).reshape(-1):
+        for i in np.asarray(found, dtype=int).reshape(-1)[:_MAX_BOXES]:
             x0, y0 = float(np.clip(u0[i], 0, cols)), float(np.clip(v0[i], 0, rows))
             x1 = float(np.clip(u0[i] + w[i] / scale, 0, cols))
             y1 = float(np.clip(v0[i] + h[i] / scale, 0, rows))

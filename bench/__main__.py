@@ -1,7 +1,7 @@
 """Run every benchmark and print one table: ``python -m bench [name ...]``.
 
-Names: sim, frames, controllers, teleop, vision, viewer, dataset, motion, learning, setup,
-launch (default: all).
+Names: sim, frames, controllers, teleop, vision, detector, viewer, dataset, motion, learning,
+setup, launch (default: all).
 Each module's ``run()`` returns rows of (metric, measured, target). The numbers mean most on
 an otherwise idle machine.
 """
@@ -11,8 +11,8 @@ import importlib
 import sys
 import time
 
-BENCHMARKS = ('sim', 'frames', 'controllers', 'teleop', 'vision', 'viewer', 'dataset',
-              'motion', 'learning', 'setup', 'launch')
+BENCHMARKS = ('sim', 'frames', 'controllers', 'teleop', 'vision', 'detector', 'viewer',
+              'dataset', 'motion', 'learning', 'setup', 'launch')
 
 
 def print_table(rows: list[tuple[str, str, str]]) -> None:

@@ -216,10 +216,11 @@ def _wait(predicate, what: str) -> None:
         time.sleep(0.05)
 
 
-def _pipeline(frame) -> dict[str, float]:
+def _pipeline(frame, parameters: dict | None = None) -> dict[str, float]:
+    """Feed ``frame`` at 30 Hz to a vision process with ``parameters``; measure its answers."""
     feeder = _Feeder(*frame)
     try:
-        with node_process('vision', {}, DOMAIN_ID, ready='looking for the ball',
+        with node_process('vision', parameters or {}, DOMAIN_ID, ready='looking for the ball',
                           timeout=START_TIMEOUT_S) as vision:
             _wait(feeder.matched, 'subscription by the vision node')
             feeder.feeder.start()

@@ -197,3 +197,43 @@ def test_progress_bar_on_a_terminal():
     assert stream.getvalue().startswith('\r[########----------------------] 1/4  25%')
     progress.close()
     assert stream.getvalue().endswith('\n')
+
+
+def test_distractors_stand_in_view_clear_of_the_ball_and_parse_for_the_sim():
+    from ur_rg2_common.scene_objects import SceneObject
+
+    kinds, in_ball_colour = set(), 0
+    for index in range(30):
+        placement = plan_placement(7, index, 0, DEFAULT_CAMERA, 0.03, REACH['ur5'], 0.0,
+                                   False, False, distractors=4, jitter_scene=True)
+        objects = SceneObject.parse(placement.objects)
+        assert len(objects) <= 4
+        for item in objects:
+            kinds.add(item.shape if item.shape == 'disc' or item.size[2] == item.size[0]
+                      else 'flat box')
+            in_ball_colour += item.color == (1.0, 0.0, 0.0)
+            assert math.hypot(item.x - placement.ball[0], item.y - placement.ball[1]) > 0.03
+            u, v, _ = K @ DEFAULT_CAMERA.to_optical((item.x, item.y, 0.0))
+            assert 0 <= u / _ <= 640 and 0 <= v / _ <= 480
+        assert len(placement.floor) == 3 and math.isclose(np.linalg.norm(placement.light), 1)
+        assert placement.light[2] > 0
+    assert kinds == {'box', 'flat box', 'disc'} and in_ball_colour > 0
+    # Without the options the placements are the ones they always were.
+    plain = plan_placement(7, 3, 0, DEFAULT_CAMERA, 0.03, REACH['ur5'], 0.0, False, False)
+    assert plain.objects is None and plain.floor is None
+    assert plain.ball == plan_placement(7, 3, 0, DEFAULT_CAMERA, 0.03, REACH['ur5'], 0.0, False,
+                                        False, distractors=4).ball
+
+
+def test_scene_objects_text_round_trips_and_bad_text_is_refused():
+    from ur_rg2_common.scene_objects import SceneObject
+
+    objects = SceneObject.parse('box 0.5 -0.5 0.3 0.03 0.02 0.01 1 0 0; disc 1 1 0 0.05 0.05 '
+                                '0.002 0 0 1;')
+    assert [o.shape for o in objects] == ['box', 'disc']
+    assert SceneObject.parse('; '.join(o.text() for o in objects)) == objects
+    assert SceneObject.parse('') == []
+    for bad in ('ball 0 0 0 0.1 0.1 0.1 1 0 0', 'box 0 0 0 0.1 0.1', 'box 0 0 0 2 1 1 1 0 0',
+                'box 0 0 nan 0.1 0.1 0.1 1 0 0'):
+        with pytest.raises(ValueError, match=r'scene_objects\[0\]'):
+            SceneObject.parse(bad)

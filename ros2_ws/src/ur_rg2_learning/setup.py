@@ -6,8 +6,8 @@ setup(
     name=package_name,
     version='0.1.0',
     packages=find_packages(exclude=['test']),
-    # The trained Reach policy the policy node runs by default.
-    package_data={package_name: ['policies/reach/*']},
+    # The trained Reach policy the policy node runs by default; the ball detector's network.
+    package_data={package_name: ['policies/reach/*', 'detector_models/*.yaml']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
@@ -23,6 +23,8 @@ setup(
         'console_scripts': [
             'train_policy = ur_rg2_learning.train:main',
             'evaluate_policy = ur_rg2_learning.evaluate:main',
+            'train_detector = ur_rg2_learning.train_detector:main',
+            'evaluate_detector = ur_rg2_learning.evaluate_detector:main',
             'policy = ur_rg2_learning.policy_node:main',
         ],
     },

@@ -89,6 +89,10 @@ PARAMETER_ARGUMENTS: tuple[ParameterArgument, ...] = (
     _sim('home_position', 'Arm home pose for reset, rad, joint order of joint_states (sim; '
          'default zeros)'),
     _sim('frame_prefix', 'Prepended to every frame id the sim publishes (sim; default empty)'),
+    _sim('floor_color', 'Floor colour [r, g, b], 0-1 (sim; default grey)'),
+    _sim('light_direction', 'Direction toward the light [x, y, z], world frame (sim)'),
+    _sim('scene_objects', 'Objects on the floor that are not balls, e.g. '
+         "'box 0.5 0.1 0 0.03 0.03 0.03 1 0 0; disc ...' (sim; default none)"),
     _vision('frames_dir', 'Directory for saved camera frames (vision; default frames)'),
     _vision('save_every_n', 'Save every Nth colour frame automatically; 0: off (vision; '
             'default 0)'),
@@ -98,6 +102,10 @@ PARAMETER_ARGUMENTS: tuple[ParameterArgument, ...] = (
             '[10, 255, 255])'),
     _vision('min_radius_px', 'Smallest ball radius in pixels that counts as a ball (vision; '
             'default 4.0)'),
+    _vision('detector', 'How vision finds balls: color (the colour range) or learned (the '
+            'trained detector, balls of any colour) (vision; default color)'),
+    _vision('model_dir', "The learned detector's directory, written by train_detector "
+            '(vision; default empty: the model shipped with ur_rg2_vision)'),
     _motion('lift_height', 'How high pick_ball lifts the ball, m (motion; default 0.15)'),
     _motion('approach_height', 'pick_ball comes down onto the ball from this high above the '
             'grasp, m (motion; default 0.1)'),

@@ -23,6 +23,7 @@ from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 from ur_rg2_common.contract import ARM_JOINTS
 from ur_rg2_common.parameters import declare_parameters
+from ur_rg2_common.scene_objects import SceneObject
 from ur_rg2_common.spin import run_node
 
 from ur_rg2_sim.camera import Camera, CameraConfig, Frame
@@ -67,6 +68,14 @@ _PARAMETERS = (
      'setting it moves the ball there at rest', False),
     ('ball_radius', 0.03, 'Ball radius, m', True),
     ('ball_color', [1.0, 0.0, 0.0, 1.0], 'Ball colour [r, g, b, a], 0-1', False),
+    ('floor_color', [c / 255 for c in CameraConfig.floor_colors[0]], 'Floor colour [r, g, b], '
+     '0-1 (its tiles alternate with a darker shade)', False),
+    ('light_direction', list(CameraConfig.light_direction), 'Direction toward the light [x, y, '
+     'z], world frame (brightness and shading of everything the camera sees)', False),
+    ('scene_objects', '', 'Static objects on the floor that are not balls (cubes, boxes, flat '
+     'discs; e.g. for a detector data set), separated by ";": "box|disc x y yaw size1 size2 '
+     'size3 r g b" (world m, rad; box: half extents; disc: radius, unused, half height; '
+     'colour 0-1); setting it replaces the previous ones', False),
     ('home_position', [0.0] * len(ARM_JOINTS), 'Arm home pose for reset, rad, joint order of '
      'joint_states', False),
     ('frame_prefix', '', 'Prepended to every frame id the sim publishes (several robots on one '
@@ -92,6 +101,9 @@ class SimSettings:
     ball_position: tuple[float, ...]
     ball_radius: float
     ball_color: tuple[float, ...]
+    floor_color: tuple[float, ...]
+    light_direction: tuple[float, ...]
+    scene_objects: tuple[SceneObject, ...]
     home_position: tuple[float, ...]
     frame_prefix: str
 
@@ -105,6 +117,16 @@ class SimSettings:
         color = finite_vector('ball_color', values['ball_color'], 4)
         if not all(0.0 <= c <= 1.0 for c in color):
             raise CommandError(f'ball_color values must be between 0 and 1, got {list(color)}')
+        floor = finite_vector('floor_color', values['floor_color'], 3)
+        if not all(0.0 <= c <= 1.0 for c in floor):
+            raise CommandError(f'floor_color values must be between 0 and 1, got {list(floor)}')
+        light = finite_vector('light_direction', values['light_direction'], 3)
+        if not any(light):
+            raise CommandError('light_direction must not be zero')
+        try:
+            objects = tuple(SceneObject.parse(values['scene_objects']))
+        except ValueError as error:
+            raise CommandError(str(error)) from None
         return cls(
             robot_model=values['robot_model'],
             gui=values['gui'],
@@ -121,6 +143,9 @@ class SimSettings:
             ball_position=finite_vector('ball_position', values['ball_position'], 3),
             ball_radius=in_range('ball_radius', values['ball_radius'], 0.005, 0.5),
             ball_color=color,
+            floor_color=floor,
+            light_direction=light,
+            scene_objects=objects,
             home_position=finite_vector('home_position', values['home_position'],
                                         len(ARM_JOINTS)),
             frame_prefix=values['frame_prefix'],
@@ -130,7 +155,10 @@ class SimSettings:
         """Return the camera settings."""
         return CameraConfig(width=self.camera_width, height=self.camera_height,
                             hfov_deg=self.camera_hfov, position=self.camera_position,
-                            look_at=self.camera_look_at)
+                            look_at=self.camera_look_at,
+                            floor_colors=(_shade(self.floor_color, 255),
+                                          _shade(self.floor_color, 218)),
+                            light_direction=self.light_direction)
 
     def schedule(self) -> Schedule:
         """Return the output rates and pacing."""
@@ -332,6 +360,8 @@ class SimNode(Node):
             self._sim.call(lambda world: world.set_ball_position(settings.ball_position))
         if settings.ball_color != previous.ball_color:
             self._sim.call(lambda world: world.set_ball_color(settings.ball_color))
+        if settings.scene_objects != previous.scene_objects:
+            self._sim.call(lambda world: world.set_scene_objects(settings.scene_objects))
         if settings.schedule() != previous.schedule() or (
                 settings.camera_config() != previous.camera_config()):
             self._sim.reschedule(settings.schedule(), self._make_camera(settings))
@@ -346,6 +376,10 @@ class SimNode(Node):
         if settings.camera_rate <= 0:
             return None
         return Camera(self._world, settings.camera_config())
+
+
+def _shade(rgb: Sequence[float], scale: float) -> tuple[int, int, int]:
+    return tuple(round(c * scale) for c in rgb)
 
 
 def degrees_list(radians: Sequence[float]) -> str:

@@ -26,6 +26,7 @@ from ur_rg2_sim.robot_model import (
     joint_limits,
     write_robot_urdf,
 )
+from ur_rg2_common.scene_objects import SceneObject
 
 # In front of the robot, in the reach of the UR3 as well as the UR5, 0.5 m from the base axis.
 DEFAULT_BALL_POSITION = (0.4, -0.3, 0.03)
@@ -123,6 +124,7 @@ class SimWorld:
         self.reset_gripper()  # the RG2 starts fully open
         self.ball = self._create_ball()
         self.extra_bodies: list[int] = []
+        self._scene_objects: list[int] = []  # set by set_scene_objects
 
     # -- construction -------------------------------------------------------------------------
 
@@ -380,6 +382,33 @@ class SimWorld:
             basePosition=list(position))
         self.extra_bodies.append(body)
         return body
+
+    def add_disc(self, position: Sequence[float], radius: float, height: float,
+                 rgba: Sequence[float], mass: float = 0.0) -> int:
+        """Add an upright cylinder (a flat disc when low) and return its body id."""
+        body = self._p.createMultiBody(
+            mass, self._p.createCollisionShape(pybullet.GEOM_CYLINDER, radius=radius,
+                                               height=height),
+            self._p.createVisualShape(pybullet.GEOM_CYLINDER, radius=radius, length=height,
+                                      rgbaColor=list(rgba)),
+            basePosition=list(position))
+        self.extra_bodies.append(body)
+        return body
+
+    def set_scene_objects(self, objects: Sequence[SceneObject]) -> None:
+        """Replace the static scenery set last time (not the ball) with ``objects``."""
+        self.remove_bodies(self._scene_objects)
+        self._scene_objects = []
+        for item in objects:
+            rgba = (*item.color, 1.0)
+            position = (item.x, item.y, item.size[2])
+            if item.shape == 'disc':
+                body = self.add_disc(position, item.size[0], 2 * item.size[2], rgba)
+            else:
+                body = self.add_box(position, item.size, rgba, mass=0.0)
+            self._p.resetBasePositionAndOrientation(
+                body, position, pybullet.getQuaternionFromEuler([0, 0, item.yaw]))
+            self._scene_objects.append(body)
 
     def remove_bodies(self, bodies: Iterable[int]) -> None:
         """Remove bodies added with :meth:`add_box` or :meth:`add_sphere`."""

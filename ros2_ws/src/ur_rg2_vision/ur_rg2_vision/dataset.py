@@ -16,6 +16,7 @@ run that made sample ``i``.
 
 from collections.abc import Sequence
 import colorsys
+import dataclasses
 from dataclasses import dataclass
 import errno
 from functools import cached_property
@@ -30,6 +31,7 @@ from typing import TextIO
 import cv2
 import numpy as np
 from ur_rg2_common.camera_pose import optical_rotation
+from ur_rg2_common.scene_objects import SceneObject
 
 from ur_rg2_vision.frame_store import encode_png, publish_new, remove, write_temporary
 
@@ -161,6 +163,10 @@ class Placement:
     in_view: bool
     camera: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
     color: tuple[float, float, float, float] | None = None
+    # The sim's scene_objects, floor_color, light_direction.
+    objects: str | None = None
+    floor: tuple[float, float, float] | None = None
+    light: tuple[float, float, float] | None = None
 
 
 class PlacementError(RuntimeError):
@@ -169,15 +175,86 @@ class PlacementError(RuntimeError):
 
 def plan_placement(seed: int, index: int, attempt: int, camera: Camera, radius: float,
                    reach: tuple[float, float], out_of_view_fraction: float,
-                   jitter_camera: bool, jitter_color: bool, tries: int = 2000) -> Placement:
+                   jitter_camera: bool, jitter_color: bool, tries: int = 2000,
+                   distractors: int = 0, jitter_scene: bool = False,
+                   ball_color: Sequence[float] = (1.0, 0.0, 0.0, 1.0)) -> Placement:
     """Return the placement of sample ``index`` (``attempt`` > 0: a redraw), seeded.
 
     The ball lies on the floor in the ring the arm reaches. In view means the whole sphere is
     in front of the camera and its centre projects into the image; out of view, its box lies
     wholly outside the image (about ``out_of_view_fraction`` of the samples), or when the
-    camera sees the whole ring, it lies behind the camera.
+    camera sees the whole ring, it lies behind the camera. With ``distractors``, up to that
+    many objects that are not balls stand on the floor in view (see :func:`plan_distractors`);
+    with ``jitter_scene``, the floor's colour and the light change too.
     """
     rng = np.random.default_rng([seed, index, attempt])
+    placement = _place_ball(rng, camera, radius, reach, out_of_view_fraction, jitter_camera,
+                            jitter_color, tries)
+    extra: dict[str, object] = {}
+    if distractors:
+        view = camera if placement.camera is None else Camera(
+            *placement.camera, camera.k, camera.width, camera.height)
+        color = ball_color if placement.color is None else placement.color
+        extra['objects'] = plan_distractors(rng, view, placement.ball, radius, color,
+                                            int(rng.integers(0, distractors + 1)))
+    if jitter_scene:
+        extra['floor'] = tuple(float(c) for c in colorsys.hsv_to_rgb(
+            rng.uniform(0, 1), rng.uniform(0, 0.7), rng.uniform(0.25, 0.95)))
+        light = rng.normal(size=3)
+        light[2] = abs(light[2]) + 0.3  # from above
+        extra['light'] = tuple(float(c) for c in light / np.linalg.norm(light))
+    return dataclasses.replace(placement, **extra) if extra else placement
+
+
+def _random_color(rng: np.random.Generator) -> tuple[float, float, float, float]:
+    rgb = colorsys.hsv_to_rgb(rng.uniform(0, 1), rng.uniform(0.5, 1), rng.uniform(0.5, 1))
+    return (*(float(c) for c in rgb), 1.0)
+
+
+def plan_distractors(rng: np.random.Generator, camera: Camera, ball: Sequence[float],
+                     radius: float, ball_color: Sequence[float], count: int,
+                     tries: int = 50) -> str:
+    """Return up to ``count`` objects that are not balls, as the sim's ``scene_objects``.
+
+    Cubes, boxes and flat discs, 1.5-8 cm (half size, log-uniform), each on the floor where
+    the camera sees it, clear of the ball, of each other and of the robot's pedestal; a third
+    of them in the ball's colour, the others in random colours.
+    """
+    objects: list[SceneObject] = []
+    taken: list[tuple[float, float, float]] = [(ball[0], ball[1], radius), (0.0, 0.0, 0.25)]
+    for _ in range(count):
+        size = float(np.exp(rng.uniform(math.log(0.015), math.log(0.08))))
+        shape = rng.choice(3)  # cube, box, disc
+        if shape == 0:
+            half = (size, size, size)
+        elif shape == 1:
+            half = (size, size * rng.uniform(0.3, 1), size * rng.uniform(0.2, 1))
+        else:
+            half = (size, size, max(0.001, size * rng.uniform(0.03, 0.25)))
+        footprint = math.hypot(half[0], half[1])
+        color = ball_color if rng.uniform() < 1 / 3 else _random_color(rng)
+        for _ in range(tries):
+            u, v = rng.uniform(0, camera.width), rng.uniform(0, camera.height)
+            ray = camera.rotation @ np.linalg.solve(camera.k, [u, v, 1.0])
+            if ray[2] >= -1e-3:
+                continue  # above the horizon
+            point = np.asarray(camera.position) - ray * camera.position[2] / ray[2]
+            if np.linalg.norm(point - camera.position) > 4.0:
+                continue
+            if all(math.hypot(point[0] - x, point[1] - y) > footprint + r + 0.02
+                   for x, y, r in taken):
+                taken.append((float(point[0]), float(point[1]), footprint))
+                objects.append(SceneObject('disc' if shape == 2 else 'box', float(point[0]),
+                                           float(point[1]), float(rng.uniform(0, math.pi)),
+                                           tuple(float(h) for h in half),
+                                           tuple(float(c) for c in color[:3])))
+                break
+    return '; '.join(item.text() for item in objects)
+
+
+def _place_ball(rng: np.random.Generator, camera: Camera, radius: float,
+                reach: tuple[float, float], out_of_view_fraction: float, jitter_camera: bool,
+                jitter_color: bool, tries: int) -> Placement:
     pose = None
     if jitter_camera:
         position = np.asarray(camera.position) + rng.uniform(-0.15, 0.15, 3)
@@ -185,10 +262,7 @@ def plan_placement(seed: int, index: int, attempt: int, camera: Camera, radius: 
         look_at = np.asarray(camera.look_at) + np.append(rng.uniform(-0.15, 0.15, 2), 0.0)
         pose = (tuple(float(v) for v in position), tuple(float(v) for v in look_at))
         camera = Camera(pose[0], pose[1], camera.k, camera.width, camera.height)
-    color = None
-    if jitter_color:
-        rgb = colorsys.hsv_to_rgb(rng.uniform(0, 1), rng.uniform(0.5, 1), rng.uniform(0.5, 1))
-        color = (*(float(c) for c in rgb), 1.0)
+    color = _random_color(rng) if jitter_color else None
     in_view = bool(rng.uniform() >= out_of_view_fraction)
     for _ in range(tries):
         distance = math.sqrt(rng.uniform(reach[0] ** 2, reach[1] ** 2))  # uniform in area

@@ -15,7 +15,7 @@ import time
 
 from geometry_msgs.msg import PoseStamped
 import numpy as np
-from rcl_interfaces.srv import GetParameters, SetParameters
+from rcl_interfaces.srv import GetParameters, SetParametersAtomically
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
@@ -48,7 +48,8 @@ STATIC_QOS = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
                         durability=DurabilityPolicy.TRANSIENT_LOCAL,
                         reliability=ReliabilityPolicy.RELIABLE)
 _SIM_PARAMETERS = ('robot_model', 'ball_radius', 'ball_position', 'ball_color',
-                   'camera_position', 'camera_look_at')
+                   'camera_position', 'camera_look_at', 'scene_objects', 'floor_color',
+                   'light_direction')
 AT_REST_M = 1e-6  # consecutive true poses this close: the ball is at rest
 ARRIVED_M = 0.005  # the ball is this near where it was put (it may settle, never roll off)
 HIDDEN_MAX = 0.02  # more of the ball hidden than this: the placement is drawn again
@@ -95,7 +96,10 @@ class SimDriver(Node):
         self._executor.add_node(self)
         self._sim = sim_node
         self._get = self.create_client(GetParameters, f'{sim_node}/get_parameters')
-        self._set = self.create_client(SetParameters, f'{sim_node}/set_parameters')
+        # Atomically: the sim then takes a sample's changes in one go (one new camera for a
+        # new pose, floor and light, not one per parameter).
+        self._set = self.create_client(SetParametersAtomically,
+                                       f'{sim_node}/set_parameters_atomically')
         self.colors: deque[Image] = deque(maxlen=4)
         self.infos: deque[CameraInfo] = deque(maxlen=8)
         self.depths: deque[Image] = deque(maxlen=4)
@@ -150,12 +154,11 @@ class SimDriver(Node):
 
     def set_parameters(self, values: dict[str, object]) -> None:
         """Set the sim's parameters; SimError with the sim's reason if one is refused."""
-        request = SetParameters.Request(parameters=[
+        request = SetParametersAtomically.Request(parameters=[
             Parameter(name, value=value).to_parameter_msg() for name, value in values.items()])
         response = self._call(self._set, request, 'the sim to set ' + ', '.join(values))
-        for parameter, result in zip(request.parameters, response.results):
-            if not result.successful:
-                raise SimError(f'the sim refused {parameter.name}: {result.reason}')
+        if not response.result.successful:
+            raise SimError(f'the sim refused {", ".join(values)}: {response.result.reason}')
 
     def lookup(self, target: str, source: str) -> np.ndarray | None:
         """Return the pose of frame ``source`` in ``target`` from /tf_static, None if unknown."""
@@ -217,7 +220,7 @@ class Sampler:
         self.empty = 0
         values = driver.get_parameters(_SIM_PARAMETERS)
         self.original = {name: values[name] for name in
-                         ('ball_position', 'ball_color', 'camera_position', 'camera_look_at')}
+                         _SIM_PARAMETERS[2:]}
         self.radius = float(values['ball_radius'])
         self.reach = REACH.get(str(values['robot_model']), REACH['ur3'])
         driver.spin_until(lambda: driver.frame_after(-1), 'a camera frame (camera/color/'
@@ -235,7 +238,9 @@ class Sampler:
         """Return sample ``index``'s placement (attempt > 0: drawn again)."""
         a = self.args
         return plan_placement(a.seed, index, attempt, self.camera, self.radius, self.reach,
-                              a.out_of_view, a.jitter_camera, a.jitter_color)
+                              a.out_of_view, a.jitter_camera, a.jitter_color,
+                              distractors=a.distractors, jitter_scene=a.jitter_scene,
+                              ball_color=self.original['ball_color'])
 
     def sample(self, index: int) -> tuple[np.ndarray, tuple | None]:
         """Return (rgb, label) of sample ``index``: the ball placed, at rest, in a new frame."""
@@ -252,7 +257,14 @@ class Sampler:
 
     def _shoot(self, placement: Placement) -> tuple[np.ndarray, tuple | None] | None:
         d = self.driver
-        values: dict[str, object] = {'ball_position': list(placement.ball)}
+        # The scenery first: the frame taken once the ball rests then shows it too.
+        values: dict[str, object] = {}
+        if placement.objects is not None:
+            values['scene_objects'] = placement.objects
+        if placement.floor is not None:
+            values['floor_color'], values['light_direction'] = (list(placement.floor),
+                                                                list(placement.light))
+        values['ball_position'] = list(placement.ball)
         if placement.camera is not None:
             values['camera_position'], values['camera_look_at'] = (list(v) for v in
                                                                    placement.camera)
@@ -344,6 +356,13 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
                         help='move the camera up to 15 cm around its pose for each sample')
     parser.add_argument('--jitter-color', action='store_true',
                         help='give the ball a random colour for each sample')
+    parser.add_argument('--distractors', type=_count, default=0, metavar='N',
+                        help='put up to N objects that are not balls (cubes, boxes, flat '
+                        "discs; random sizes and colours, a third in the ball's colour) on the "
+                        'floor in view for each sample; removed afterwards')
+    parser.add_argument('--jitter-scene', action='store_true',
+                        help='give the floor a random colour and the light a random '
+                        'direction for each sample')
     parser.add_argument('--timeout', type=float, default=20.0, metavar='SECONDS',
                         help='longest wait for the sim (its services, a frame, the ball)')
     parser.add_argument('--sim-node', default=SIM_NODE, metavar='NAME',
@@ -357,6 +376,13 @@ def _positive_int(text: str) -> int:
     value = int(text)
     if value < 1:
         raise argparse.ArgumentTypeError(f'must be at least 1, got {value}')
+    return value
+
+
+def _count(text: str) -> int:
+    value = int(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f'must be 0 or more, got {value}')
     return value
 
 

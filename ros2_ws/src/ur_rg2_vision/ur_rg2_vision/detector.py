@@ -182,6 +182,15 @@ class BallDetector:
         found.sort(key=lambda item: -item[0])
         return [detection for _, detection in found]
 
+    def find_in(self, rgb: np.ndarray, k: np.ndarray | None,
+                window: tuple[int, int, int, int]) -> Detection | None:
+        """Return the ball of this colour in ``window`` (x0, y0, x1, y1) of the image, if any."""
+        height, width = rgb.shape[:2]
+        x0, y0 = max(0, window[0]), max(0, window[1])
+        x1, y1 = min(width, window[2]), min(height, window[3])
+        result = self._refine(rgb, k, x0, y0, x1, y1) if x1 > x0 and y1 > y0 else None
+        return None if result is None else result[1]
+
     def _refine(self, rgb: np.ndarray, k: np.ndarray | None, x0: int, y0: int, x1: int,
                 y1: int) -> tuple[int, Detection] | None:
         """Fit a circle to the blobs in one window; return (on-circle points, detection)."""

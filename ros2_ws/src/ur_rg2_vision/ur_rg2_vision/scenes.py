@@ -7,6 +7,7 @@ benchmark; the sim's world and camera render them, so they look as the node sees
 """
 
 from collections.abc import Iterator, Sequence
+import colorsys
 from dataclasses import dataclass
 import math
 
@@ -14,6 +15,8 @@ import numpy as np
 import pybullet
 from ur_rg2_common.camera_pose import optical_rotation
 from ur_rg2_sim.camera import Camera, CameraConfig
+from ur_rg2_common.camera_pose import optical_rotation
+from ur_rg2_common.scene_objects import SceneObject
 from ur_rg2_sim.world import SimWorld, WorldConfig
 
 RED = (1.0, 0.0, 0.0, 1.0)
@@ -159,3 +162,87 @@ def no_balls(count: int, seed: int = 0, sizes: tuple[float, float] = (0.015, 0.0
             world.remove_bodies([body])
     finally:
         world.close()
+
+
+def hard_scenes(count: int, seed: int = 0, ball_share: float = 0.7,
+                radii: tuple[float, float] = (0.015, 0.08),
+                distances: tuple[float, float] = (0.5, 2.0)) -> Iterator[Shot]:
+    """Yield ``count`` frames of scenes the sim never makes by itself (the held-out hard set).
+
+    Each from a random camera pose (0.6-2.2 m from a point on the floor near the arm, 25-65
+    degrees down, from any side but not inside the arm),
+    on a floor of a random colour under a random light, with 1-4 objects that are not balls
+    (cubes, boxes, flat discs of random sizes and colours, a third in the ball's colour) and,
+    in ``ball_share`` of them, one ball of a random colour (red among them) and radius, resting
+    on the floor in view. ``centre`` is None in the frames without a ball.
+    """
+    from ur_rg2_vision.dataset import Camera as PlanCamera
+    from ur_rg2_vision.dataset import plan_distractors
+    rng = np.random.default_rng(seed)
+    world = SimWorld(WorldConfig(ball_position=HIDDEN))
+    try:
+        for index in range(count):
+            position = np.zeros(3)
+            while np.linalg.norm(position[:2]) < 0.7:  # not in the arm
+                target = np.array([rng.uniform(-0.3, 0.9), rng.uniform(-0.9, 0.6), 0.0])
+                reach, pitch, yaw = (rng.uniform(0.6, 2.2), math.radians(rng.uniform(25, 65)),
+                                     rng.uniform(-math.pi, math.pi))
+                position = target + reach * np.array([math.cos(pitch) * math.cos(yaw),
+                                                      math.cos(pitch) * math.sin(yaw),
+                                                      math.sin(pitch)])
+            floor = np.array(colorsys.hsv_to_rgb(rng.uniform(0, 1), rng.uniform(0, 0.7),
+                                                 rng.uniform(0.25, 0.95))) * 255
+            light = rng.normal(size=3)
+            light[2] = abs(light[2]) + 0.3
+            config = CameraConfig(position=tuple(position), look_at=tuple(target),
+                                  floor_colors=(tuple(floor), tuple(0.85 * floor)),
+                                  light_direction=tuple(light))
+            camera = Camera(world, config)
+            color = (RED if rng.uniform() < 0.2 else
+                     (*colorsys.hsv_to_rgb(rng.uniform(0, 1), rng.uniform(0.5, 1),
+                                           rng.uniform(0.5, 1)), 1.0))
+            radius = float(np.exp(rng.uniform(*np.log(radii))))
+            point = None
+            if rng.uniform() < ball_share:
+                point = _floor_point(rng, camera, radius, distances)
+            ball = point if point is not None else HIDDEN
+            plan = PlanCamera(tuple(position), tuple(target), camera.k, config.width,
+                              config.height)
+            objects = plan_distractors(rng, plan, ball, radius, color, int(rng.integers(1, 5)))
+            world.set_scene_objects(SceneObject.parse(objects))
+            body = world.add_sphere(ball, radius, color, mass=0.0)
+            frame = camera.render()
+            world.remove_bodies([body])
+            shot = Shot(f'hard {index}: ' + ('no ball' if point is None else
+                                             f'ball r {radius * 100:.1f} cm'),
+                        frame.rgb, frame.depth, camera.k, None)
+            if point is not None:
+                shot.radius = radius
+                shot.centre, shot.radius_px, shot.visible = ball_truth(
+                    camera, frame.depth, point, radius)
+            yield shot
+    finally:
+        world.close()
+
+
+def _floor_point(rng: np.random.Generator, camera: Camera, radius: float,
+                 distances: tuple[float, float]) -> np.ndarray | None:
+    """Return a point where a ball of ``radius`` rests on the floor, wholly in view."""
+    rotation = optical_rotation(camera.config.position, camera.config.look_at)
+    position = np.asarray(camera.config.position, dtype=float)
+    for _ in range(200):
+        u = rng.uniform(0, camera.config.width)
+        v = rng.uniform(0, camera.config.height)
+        ray = rotation @ np.array([(u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy, 1])
+        if ray[2] >= -1e-3:
+            continue
+        point = position + ray * (radius - position[2]) / ray[2]
+        if not distances[0] <= np.linalg.norm(point - position) <= distances[1]:
+            continue
+        x, y, z = camera.world_to_optical(point)
+        margin = camera.fx * radius / z + 2
+        pu, pv = camera.project(point)
+        if (margin <= pu <= camera.config.width - margin
+                and margin <= pv <= camera.config.height - margin):
+            return point
+    return None

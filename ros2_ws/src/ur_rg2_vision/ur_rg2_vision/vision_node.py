@@ -1,6 +1,7 @@
 """Node ``ur_rg2_vision``: the ball's 3D position from the RGB-D camera, and frame saving.
 
-ROS wiring only; the work is done by :mod:`ur_rg2_vision.detector` (colour + shape),
+ROS wiring only; the work is done by :mod:`ur_rg2_vision.detector` (colour + shape) or, with
+``detector:=learned``, :mod:`ur_rg2_vision.learned` (a YOLO model, ONNX),
 :mod:`ur_rg2_vision.localize` (depth) and :mod:`ur_rg2_vision.frame_store` (PNG files).
 
 Each colour image is searched for the ball; its depth image (same stamp, before or after it)
@@ -42,6 +43,7 @@ from ur_rg2_vision.detector import (
     HsvRange,
 )
 from ur_rg2_vision.frame_store import save_frame
+from ur_rg2_vision.learned import BallModel, LearnedBallDetector
 from ur_rg2_vision.localize import BallPosition, locate_first
 from ur_rg2_vision.ros_image import camera_matrix, image_to_depth, image_to_rgb, rgb_to_image
 
@@ -74,7 +76,14 @@ _PARAMETERS = (
     ParameterSpec('ball_radius', 0.0, 'Ball radius in metres; 0: measure it in every frame from '
                   'the depth and the outline. A radius given is assumed: balls of another size '
                   'are not found.', bounds=(0.0, 10.0)),
+    ParameterSpec('detector', 'color', 'How balls are found in the colour image: "color" (the '
+                  'HSV range above, round blobs) or "learned" (a trained YOLO model, ONNX, any '
+                  'colour); the depth then gives the 3D centre either way.', read_only=True),
+    ParameterSpec('model_dir', '', 'detector "learned": a directory written by train_detector '
+                  '(model.onnx, detector.json); empty: the model shipped with the package.',
+                  read_only=True),
 )
+DETECTORS = ('color', 'learned')
 _DETECTION_PARAMETERS = ('hsv_lower', 'hsv_upper', 'min_radius_px', 'ball_radius')
 
 
@@ -92,19 +101,23 @@ class _Frame:
 
 @dataclass(frozen=True)
 class _DetectionConfig:
-    detector: BallDetector
+    detector: BallDetector | LearnedBallDetector
     ball_radius: float
 
 
-def _detection_config(values: dict) -> _DetectionConfig:
-    """Return the detection settings for parameter values; ValueError if they are invalid."""
+def _detection_config(values: dict, model: BallModel | None) -> _DetectionConfig:
+    """Return the detection settings for parameter values; ValueError if they are invalid.
+
+    ``model``: the learned detector's model, None for the colour detector.
+    """
     color = HsvRange(tuple(int(x) for x in values['hsv_lower']),
                      tuple(int(x) for x in values['hsv_upper']))
     if not values['ball_radius'] >= 0:
         raise ValueError(f'ball_radius must be 0 (measure) or positive, got '
                          f'{values["ball_radius"]}')
-    return _DetectionConfig(BallDetector(color, values['min_radius_px']),
-                            float(values['ball_radius']))
+    detector = (BallDetector(color, values['min_radius_px']) if model is None
+                else LearnedBallDetector(model, values['min_radius_px']))
+    return _DetectionConfig(detector, float(values['ball_radius']))
 
 
 def _stamp_key(header: Header) -> tuple[int, int]:
@@ -128,7 +141,12 @@ class VisionNode(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__(NODE_NAME, **kwargs)
         values = declare_parameters(self, _PARAMETERS)
-        self._config = _detection_config(values)
+        if values['detector'] not in DETECTORS:
+            raise ValueError(f"detector must be {' or '.join(DETECTORS)}, got "
+                             f"{values['detector']!r}")
+        # Loaded once: read-only, and a missing or broken model stops the start (ModelError).
+        self._model = BallModel(values['model_dir']) if values['detector'] == 'learned' else None
+        self._config = _detection_config(values, self._model)
         # Absolute from here on: logs and save_frame answers say where the files really are.
         self._frames_dir = os.path.abspath(values['frames_dir'])
         self._save_every_n = values['save_every_n']
@@ -157,9 +175,11 @@ class VisionNode(Node):
         self._unpublished: list[_Frame] = []  # colour frames whose ball/image is due
         self._images_due = self.create_guard_condition(self._publish_images)
         self.create_service(Trigger, 'vision/save_frame', self._on_save_frame)
+        how = ('by its colour' if self._model is None
+               else f'with the learned detector in {self._model.directory}')
         self.get_logger().info(
-            f'looking for the ball in {self.resolve_topic_name("camera/color/image_raw")}; '
-            f'frames are saved to {self._frames_dir}')
+            f'looking for the ball {how} in {self.resolve_topic_name("camera/color/image_raw")}'
+            f'; frames are saved to {self._frames_dir}')
 
     # -- parameters ---------------------------------------------------------------------------
 
@@ -167,7 +187,7 @@ class VisionNode(Node):
         values = {name: self.get_parameter(name).value for name in _DETECTION_PARAMETERS}
         values.update({p.name: p.value for p in parameters if p.name in values})
         try:
-            config = _detection_config(values)
+            config = _detection_config(values, self._model)
         except ValueError as error:
             return SetParametersResult(successful=False, reason=str(error))
         self._config = config

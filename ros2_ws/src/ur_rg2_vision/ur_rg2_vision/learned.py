@@ -1,0 +1,256 @@
+"""The learned ball detector: a YOLO model exported to ONNX, run with OpenCV's DNN module. No ROS.
+
+A model directory (written by ``train_detector``, or the one shipped in this package) holds
+``model.onnx`` and ``detector.json``: the input size ``[height, width]``, the class ``names``,
+the ``ball_class`` index and the ``confidence`` and ``iou`` (non-maximum suppression)
+thresholds. Output layouts read: ultralytics' YOLOv8/YOLO11 export (``yolo export
+format=onnx``), 1 x (4 + classes) x N, and its transpose 1 x N x (4 + classes); boxes are
+(cx, cy, w, h) in input pixels of the letterboxed image (the frame scaled to fit, centred, grey
+around it, as ultralytics feeds it), class scores 0-1. A user's own model of that layout drops
+in with a ``detector.json`` beside it.
+
+Each box gives two candidates, tried in turn by :func:`ur_rg2_vision.localize.locate_first`:
+the ball's outline found in and around the box by the ball's own colour (the median hue of
+the box's middle) with the colour detector's circle fit, sharper than the model's box; and the
+box itself as a :class:`~ur_rg2_vision.detector.Detection` like the colour detector's: the
+sphere whose outline has this box (off the optical axis an ellipse, see
+:func:`ur_rg2_vision.dataset.sphere_box`) gives the image of its centre and its radius as seen on
+the axis; its pixels are the disc inside the box, and :mod:`ur_rg2_vision.localize` fits the
+sphere to their depth (a flat disc or a cube the model took for a ball fails there).
+"""
+
+import json
+import math
+import os
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ur_rg2_vision.dataset import sphere_box
+from ur_rg2_vision.detector import BallDetector, Detection, HsvRange, least_squares_step
+
+MODEL_FILE = 'model.onnx'
+SETTINGS_FILE = 'detector.json'
+SHIPPED_MODEL = Path(__file__).resolve().parent / 'models' / 'ball'
+_PAD_GREY = 114  # ultralytics' letterbox fill
+_MAX_CANDIDATES = 100  # boxes over the threshold kept for non-maximum suppression
+_MAX_BOXES = 6  # the most confident boxes after it: bounds the work per frame
+_FIT_ITERATIONS = 6
+_BORDER_PX = 1.0  # a box side this near the image border is cut off there, not the outline
+# The ball's colour, taken from the middle of the model's box: hue +- this, at least this much
+# saturation (OpenCV's 8-bit HSV) for a colour to go by, and value (its shaded side).
+_HUE_SPAN = 10
+_MIN_SATURATION = 60
+_MIN_VALUE = 25
+
+
+class ModelError(ValueError):
+    """A model directory that is missing, incomplete or unreadable, with the reason."""
+
+
+class BallModel:
+    """An ONNX detector and its settings, loaded from a model directory."""
+
+    def __init__(self, model_dir: str | os.PathLike | None = None) -> None:
+        directory = Path(model_dir) if model_dir else SHIPPED_MODEL
+        self.directory = directory
+        settings_path, model_path = directory / SETTINGS_FILE, directory / MODEL_FILE
+        if not directory.is_dir():
+            raise ModelError(f'model_dir {str(directory)!r} is not a directory')
+        try:
+            settings = json.loads(settings_path.read_text())
+            height, width = (int(n) for n in settings['input_size'])
+            self.names = [str(name) for name in settings['names']]
+            self.ball_class = int(settings.get('ball_class', 0))
+            self.confidence = float(settings['confidence'])
+            self.iou = float(settings['iou'])
+        except (OSError, ValueError, KeyError, TypeError) as error:
+            raise ModelError(f'model_dir {str(directory)!r}: cannot read {SETTINGS_FILE} '
+                             f'({type(error).__name__}: {error})') from None
+        if not (0 <= self.ball_class < len(self.names) and 0 < self.confidence < 1
+                and 0 < self.iou <= 1 and height > 0 and width > 0):
+            raise ModelError(f'model_dir {str(directory)!r}: {SETTINGS_FILE} has an invalid '
+                             'input_size, ball_class, confidence or iou')
+        self.input_size = height, width
+        try:
+            self._net = cv2.dnn.readNetFromONNX(str(model_path))
+            output = self._forward(np.zeros((1, 3, height, width), np.float32))
+        except cv2.error as error:
+            reason = str(error).strip().splitlines()[-1] if str(error).strip() else 'cv2.error'
+            raise ModelError(f'model_dir {str(directory)!r}: cannot run {MODEL_FILE} '
+                             f'({reason})') from None
+        channels = 4 + len(self.names)
+        if output.ndim != 3 or output.shape[0] != 1 or channels not in output.shape[1:]:
+            raise ModelError(f'model_dir {str(directory)!r}: {MODEL_FILE} gives output '
+                             f'{list(output.shape)}, expected 1 x {channels} x N (YOLOv8 '
+                             f'layout, {len(self.names)} classes) or its transpose')
+        self._transposed = output.shape[1] != channels
+
+    def _forward(self, blob: np.ndarray) -> np.ndarray:
+        self._net.setInput(blob)
+        return self._net.forward()
+
+    def boxes(self, rgb: np.ndarray) -> list[tuple[float, float, float, float, float]]:
+        """Return the balls' boxes (u0, v0, u1, v1, score) in image pixels, best first."""
+        height, width = self.input_size
+        rows, cols = rgb.shape[:2]
+        scale = min(height / rows, width / cols)
+        inner_w, inner_h = round(cols * scale), round(rows * scale)
+        left, top = (width - inner_w) // 2, (height - inner_h) // 2
+        canvas = np.full((height, width, 3), _PAD_GREY, np.uint8)
+        canvas[top:top + inner_h, left:left + inner_w] = cv2.resize(
+            rgb, (inner_w, inner_h), interpolation=cv2.INTER_LINEAR)
+        blob = cv2.dnn.blobFromImage(canvas, 1 / 255)  # RGB, as ultralytics feeds it
+        output = self._forward(blob)[0]
+        if not self._transposed:
+            output = output.T  # N x (4 + classes)
+        scores = output[:, 4 + self.ball_class]
+        if len(self.names) > 1:  # a box is the ball's when the ball is its best class
+            scores = np.where(output[:, 4:].argmax(axis=1) == self.ball_class, scores, 0.0)
+        keep = np.flatnonzero(scores >= self.confidence)
+        keep = keep[np.argsort(-scores[keep])[:_MAX_CANDIDATES]]
+        if not len(keep):
+            return []
+        cx, cy, w, h = output[keep, :4].T
+        u0 = (cx - w / 2 - left) / scale
+        v0 = (cy - h / 2 - top) / scale
+        found = cv2.dnn.NMSBoxes(
+            [[float(a), float(b), float(c), float(d)] for a, b, c, d in
+             zip(u0, v0, w / scale, h / scale)], scores[keep].tolist(), self.confidence,
+            self.iou)
+        result = []
+        for i in np.asarray(found, dtype=int).reshape(-1)[:_MAX_BOXES]:
+            x0, y0 = float(np.clip(u0[i], 0, cols)), float(np.clip(v0[i], 0, rows))
+            x1 = float(np.clip(u0[i] + w[i] / scale, 0, cols))
+            y1 = float(np.clip(v0[i] + h[i] / scale, 0, rows))
+            if x1 > x0 and y1 > y0:
+                result.append((x0, y0, x1, y1, float(scores[keep[i]])))
+        return result
+
+
+class LearnedBallDetector:
+    """Finds balls with a :class:`BallModel`; the same ``detect`` as the colour detector."""
+
+    def __init__(self, model: BallModel, min_radius_px: float) -> None:
+        if not min_radius_px > 0:
+            raise ValueError(f'min_radius_px must be positive, got {min_radius_px}')
+        self.model = model
+        self.min_radius_px = float(min_radius_px)
+
+    def detect(self, rgb: np.ndarray, k: np.ndarray | None = None) -> list[Detection]:
+        """Return the balls in an RGB uint8 image, the most confident first.
+
+        ``k``: the 3x3 camera matrix; without it, outlines are taken as seen on the axis.
+        """
+        if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+            raise ValueError(f'expected an RGB uint8 image, got {rgb.dtype} {rgb.shape}')
+        detections = []
+        for box in self.model.boxes(rgb):
+            # The outline in the ball's own colour first: sharper than the model's box.
+            for detection in (_colour_outline(rgb, k, box, self.min_radius_px),
+                              box_detection(box, rgb.shape[1], rgb.shape[0], k)):
+                if detection is not None and detection.radius >= self.min_radius_px:
+                    detections.append(detection)
+        return detections
+
+
+def _colour_outline(rgb: np.ndarray, k: np.ndarray | None,
+                    box: tuple[float, float, float, float, float],
+                    min_radius_px: float) -> Detection | None:
+    """Return the ball's outline in the box found by its colour, None when there is none.
+
+    The colour: the median hue and saturation of the box's middle; the colour detector's
+    circle fit then finds the outline in the box grown by a quarter (the model's box is a few
+    pixels off). A ball of little saturation (grey, white) has no hue to go by.
+    """
+    u0, v0, u1, v1, _ = box
+    half_w, half_h = (u1 - u0) / 2, (v1 - v0) / 2
+    cu, cv_ = (u0 + u1) / 2, (v0 + v1) / 2
+    core = rgb[int(cv_ - half_h / 3):int(cv_ + half_h / 3) + 1,
+               int(cu - half_w / 3):int(cu + half_w / 3) + 1]
+    if core.size == 0:
+        return None
+    hsv = cv2.cvtColor(np.ascontiguousarray(core), cv2.COLOR_RGB2HSV).reshape(-1, 3)
+    saturation = float(np.median(hsv[:, 1]))
+    if saturation < _MIN_SATURATION:
+        return None
+    # The median hue on the circle of hues: about the hue farthest from most of them.
+    hue = hsv[:, 0].astype(int)
+    pivot = (int(np.median((hue + 90) % 180)) + 90) % 180
+    lower = ((pivot - _HUE_SPAN) % 180, int(saturation * 0.4), _MIN_VALUE)
+    upper = ((pivot + _HUE_SPAN) % 180, 255, 255)
+    detector = BallDetector(HsvRange(lower, upper), min_radius_px)
+    grow_w, grow_h = half_w / 2 + 2, half_h / 2 + 2
+    detection = detector.find_in(rgb, k, (int(u0 - grow_w), int(v0 - grow_h),
+                                          int(math.ceil(u1 + grow_w)),
+                                          int(math.ceil(v1 + grow_h))))
+    if detection is None or not (u0 <= detection.u + 0.5 <= u1 and v0 <= detection.v + 0.5 <= v1):
+        return None
+    return detection
+
+
+def box_detection(box: tuple[float, float, float, float, float], width: int, height: int,
+                  k: np.ndarray | None) -> Detection:
+    """Return the detection of a ball whose outline has this box (u0, v0, u1, v1, score).
+
+    The box in YOLO's pixel coordinates (pixel i covers [i, i + 1]), as :meth:`BallModel.boxes`
+    gives it; the detection in ROS's (pixel i's centre at i), as the camera matrix has it.
+    """
+    u0, v0, u1, v1 = (c - 0.5 for c in box[:4])
+    score = box[4]
+    u, v, radius = (u0 + u1) / 2, (v0 + v1) / 2, max(u1 - u0, v1 - v0) / 2
+    if k is not None:
+        u, v, radius = _outline_sphere((u0, v0, u1, v1), width, height, k, (u, v, radius))
+    # Pixels: the disc inside the box (localize fits the core of it, and trims the rest).
+    x0, y0 = max(0, int(math.floor(u0))), max(0, int(math.floor(v0)))
+    x1, y1 = min(width, int(math.ceil(u1)) + 1), min(height, int(math.ceil(v1)) + 1)
+    rows, cols = np.mgrid[y0:y1, x0:x1]
+    mask = (cols - u) ** 2 + (rows - v) ** 2 <= radius ** 2
+    return Detection(u=float(u), v=float(v), radius=float(radius), coverage=score, mask=mask,
+                     x0=x0, y0=y0)
+
+
+def _outline_sphere(box: tuple[float, float, float, float], width: int, height: int,
+                    k: np.ndarray, start: tuple[float, float, float]
+                    ) -> tuple[float, float, float]:
+    """Return (u, v, on-axis radius) of the sphere whose projected box is ``box``.
+
+    Least squares over the box sides not cut off by the image border; the sphere at distance
+    1 along the ray through (u, v), of the radius whose on-axis image is ``radius`` pixels.
+    """
+    sides = np.array([box[0] > _BORDER_PX - 0.5, box[1] > _BORDER_PX - 0.5,
+                      box[2] < width - 0.5 - _BORDER_PX, box[3] < height - 0.5 - _BORDER_PX])
+    if np.count_nonzero(sides) < 3:
+        return start
+    target = np.asarray(box)[sides]
+    focal = (k[0, 0] + k[1, 1]) / 2
+    inverse = np.linalg.inv(k)
+
+    def predict(params: np.ndarray) -> np.ndarray | None:
+        u, v, radius = params
+        ray = inverse @ (u, v, 1.0)
+        ray /= np.linalg.norm(ray)
+        projected = sphere_box(ray, math.sin(math.atan(radius / focal)), k)
+        return None if projected is None else np.asarray(projected)[sides]
+
+    params = np.asarray(start, dtype=float)
+    for _ in range(_FIT_ITERATIONS):
+        predicted = predict(params)
+        if predicted is None:
+            return start
+        jacobian = np.empty((len(target), 3))
+        for j in range(3):
+            nudged = params.copy()
+            nudged[j] += 0.1
+            moved = predict(nudged)
+            if moved is None:
+                return start
+            jacobian[:, j] = (moved - predicted) / 0.1
+        step = least_squares_step(jacobian, predicted - target)
+        params += step
+        if params[2] <= 0:
+            return start
+        if np.abs(step).max() < 0.01:
+            break
+    return float(params[0]), float(params[1]), float(params[2])

@@ -1,0 +1,153 @@
+"""The learned ball detector: train_detector -> evaluate_detector -> vision detector:=learned.
+
+A short training run on a tiny data set (rendered hard scenes, written as `dataset` writes
+them) exports a model that evaluate_detector reads back and the vision node serves; the model
+shipped with the package finds a blue ball in the sim's scene and calls neither a red cube nor
+a flat red disc a ball; a missing or corrupt model directory stops the node at start-up with
+one clear line. The hard-set numbers are the benchmark's (``python -m bench detector``).
+"""
+
+import os
+from pathlib import Path
+import re
+import subprocess
+import sys
+
+from conftest import start_sim, wait_for
+from geometry_msgs.msg import PointStamped
+import numpy as np
+import pytest
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import CameraInfo, Image
+from std_msgs.msg import Header
+from ur_rg2_common.camera_pose import optical_rotation
+from ur_rg2_sim.sim_node import IMAGE_QOS
+from ur_rg2_vision.dataset import DatasetWriter, sphere_box, yolo_label
+from ur_rg2_vision.learned import MODEL_FILE, SETTINGS_FILE, BallModel, ModelError, box_detection
+from ur_rg2_vision.localize import locate_ball
+from ur_rg2_vision.ros_image import rgb_to_image
+from ur_rg2_vision.scenes import hard_scenes
+from ur_rg2_vision.vision_node import VisionNode
+
+BIN = Path(sys.executable).parent
+TIMEOUT = 30.0  # the sim and the vision in one process on a loaded 2-core machine
+
+
+def _listen(graph) -> tuple[list[PointStamped], list[Image]]:
+    node = graph.node('ball_listener')
+    positions, images = [], []
+    node.create_subscription(PointStamped, 'ball/position', positions.append, 100)
+    node.create_subscription(Image, 'ball/image', images.append, IMAGE_QOS)
+    return positions, images
+
+
+def test_a_box_around_a_ball_gives_its_centre_through_the_depth():
+    """The geometry without the model: the exact box of each ball, off the axis too."""
+    errors = []
+    for shot in hard_scenes(16, seed=21, ball_share=1.0):
+        if shot.centre is None or shot.visible < 0.9:
+            continue
+        cx, cy, w, h = yolo_label(sphere_box(shot.centre, shot.radius, shot.k), 640, 480)
+        box = ((cx - w / 2) * 640, (cy - h / 2) * 480, (cx + w / 2) * 640, (cy + h / 2) * 480,
+               0.9)
+        position = locate_ball(box_detection(box, 640, 480, shot.k), shot.depth, shot.k)
+        assert position is not None, shot.name
+        errors.append(np.linalg.norm([position.x, position.y, position.z] - shot.centre))
+    assert len(errors) >= 8 and np.median(errors) < 0.003, errors
+
+
+def test_short_training_exports_a_model_evaluate_reads_and_vision_serves(tmp_path, ros_graph):
+    data, model = tmp_path / 'data', tmp_path / 'model'
+    writer = DatasetWriter(data, 0.25)
+    shots = list(hard_scenes(12, seed=3, ball_share=0.8))
+    for shot in shots:
+        label = None
+        if shot.centre is not None:
+            label = yolo_label(sphere_box(shot.centre, shot.radius, shot.k), 640, 480)
+        writer.write(shot.rgb, label)
+    trained = subprocess.run(
+        [str(BIN / 'train_detector'), '--data', str(data), '--out', str(model), '--epochs', '2',
+         '--imgsz', '160'], capture_output=True, text=True, timeout=300)
+    assert trained.returncode == 0, trained.stderr[-3000:]
+    assert {MODEL_FILE, SETTINGS_FILE, 'training_curve.png', 'results.csv'} <= {
+        p.name for p in model.iterdir()}
+    assert BallModel(model).input_size == (128, 160)  # 4:3 frames, sides of stride 32
+    evaluated = subprocess.run(
+        [str(BIN / 'evaluate_detector'), '--model', str(model), '--data', str(data)],
+        capture_output=True, text=True, timeout=120)
+    assert evaluated.returncode == 0, evaluated.stderr
+    assert re.fullmatch(r'recall [\d.]+ precision [\d.]+ mAP50 [\d.]+ over 3 images\n',
+                        evaluated.stdout), evaluated.stdout
+    # The node runs it: every frame fed comes back annotated on ball/image.
+    ros_graph.add(VisionNode(context=ros_graph.context, parameter_overrides=[
+        Parameter('detector', value='learned'), Parameter('model_dir', value=str(model)),
+        Parameter('frames_dir', value=str(tmp_path / 'frames'))]))
+    _, images = _listen(ros_graph)
+    feeder = ros_graph.node('feeder')
+    publishers = [feeder.create_publisher(kind, topic, IMAGE_QOS) for kind, topic in (
+        (CameraInfo, 'camera/color/camera_info'), (Image, 'camera/color/image_raw'),
+        (Image, 'camera/depth/image_raw'))]
+    shot = shots[0]
+    header = Header(frame_id='camera_color_optical_frame')
+    info = CameraInfo(header=header, width=640, height=480, k=shot.k.ravel().tolist())
+    depth = Image(header=header, height=480, width=640, encoding='32FC1', step=640 * 4,
+                  data=shot.depth.astype(np.float32).tobytes())
+
+    def fed_and_served() -> bool:
+        header.stamp.sec += 1
+        for publisher, msg in zip(publishers, (info, rgb_to_image(shot.rgb, header), depth)):
+            msg.header = header
+            publisher.publish(msg)
+        return bool(images)
+
+    wait_for(fed_and_served, TIMEOUT, 'ball/image from the learned detector', interval=0.1)
+
+
+def test_shipped_model_finds_a_blue_ball_and_no_red_cube_or_flat_disc(ros_graph, tmp_path):
+    camera, look_at = [1.3, -1.1, 0.95], [0.3, -0.1, 0.1]
+    ball = [0.55, -0.5, 0.03]
+    sim = start_sim(ros_graph, ball_position=ball, ball_color=[0.0, 0.2, 1.0, 1.0],
+              camera_position=camera, camera_look_at=look_at,
+              scene_objects='box 0.75 -0.35 0.5 0.03 0.03 0.03 1 0 0; '
+                            'disc 0.35 -0.75 0 0.04 0.04 0.003 1 0 0')
+    ros_graph.add(VisionNode(context=ros_graph.context, parameter_overrides=[
+        Parameter('detector', value='learned'),
+        Parameter('frames_dir', value=str(tmp_path))]))
+    positions, images = _listen(ros_graph)
+    expected = optical_rotation(camera, look_at).T @ (np.array(ball) - camera)
+
+    def error(msg: PointStamped) -> float:
+        return float(np.linalg.norm([msg.point.x, msg.point.y, msg.point.z] - expected))
+
+    wait_for(lambda: len([p for p in positions if error(p) < 0.01]) >= 3, TIMEOUT,
+             'the blue ball at its place')
+    assert all(error(p) < 0.01 for p in positions), [round(error(p), 3) for p in positions]
+    # The ball out of view: the red cube and the red disc stay, and are no balls.
+    assert sim.set_parameters([Parameter('ball_position', value=[2.5, -3.0, 0.03])])[0].successful
+    seen = len(images)
+    wait_for(lambda: len(images) > seen + 30, TIMEOUT, '30 frames of ball/image')
+    stamp = images[seen + 5].header.stamp
+    later = [p for p in positions if (p.header.stamp.sec, p.header.stamp.nanosec)
+             >= (stamp.sec, stamp.nanosec)]
+    assert not later, f'balls found without a ball in view: {[error(p) for p in later]}'
+
+
+@pytest.mark.parametrize('breakage', ['missing', 'no settings', 'corrupt model'])
+def test_a_missing_or_corrupt_model_dir_is_refused_at_start_up(tmp_path, breakage):
+    model = tmp_path / 'model'
+    if breakage != 'missing':
+        model.mkdir()
+        shipped = BallModel().directory
+        (model / MODEL_FILE).write_bytes(b'not an onnx model' if breakage == 'corrupt model'
+                                         else (shipped / MODEL_FILE).read_bytes())
+        if breakage == 'corrupt model':
+            (model / SETTINGS_FILE).write_text((shipped / SETTINGS_FILE).read_text())
+    with pytest.raises(ModelError):
+        BallModel(model)
+    result = subprocess.run(
+        [str(BIN / 'vision'), '--ros-args', '-p', 'detector:=learned', '-p',
+         f'model_dir:={model}'], capture_output=True, text=True, timeout=60,
+        env=dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST'))
+    assert result.returncode == 1
+    lines = [line for line in (result.stdout + result.stderr).splitlines() if line.strip()]
+    assert len(lines) == 1 and 'cannot start' in lines[0] and str(model) in lines[0], lines

@@ -14,6 +14,7 @@ from typing import Optional
 
 import pybullet
 from ur_rg2_common.contract import ARM_JOINTS
+from ur_rg2_common.scene_objects import SceneObject
 
 from ur_rg2_sim.robot_model import (
     GRIPPER_JOINTS,
@@ -26,7 +27,6 @@ from ur_rg2_sim.robot_model import (
     joint_limits,
     write_robot_urdf,
 )
-from ur_rg2_common.scene_objects import SceneObject
 
 # In front of the robot, in the reach of the UR3 as well as the UR5, 0.5 m from the base axis.
 DEFAULT_BALL_POSITION = (0.4, -0.3, 0.03)

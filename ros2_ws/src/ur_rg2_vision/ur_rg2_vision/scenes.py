@@ -14,9 +14,8 @@ import math
 import numpy as np
 import pybullet
 from ur_rg2_common.camera_pose import optical_rotation
-from ur_rg2_sim.camera import Camera, CameraConfig
-from ur_rg2_common.camera_pose import optical_rotation
 from ur_rg2_common.scene_objects import SceneObject
+from ur_rg2_sim.camera import Camera, CameraConfig
 from ur_rg2_sim.world import SimWorld, WorldConfig
 
 RED = (1.0, 0.0, 0.0, 1.0)

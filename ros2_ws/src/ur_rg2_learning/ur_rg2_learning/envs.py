@@ -169,9 +169,9 @@ class UrRg2Env(gym.Env):
     def step(self, action: np.ndarray) -> tuple[dict, float, bool, bool, dict]:
         """Move the TCP (and the gripper), run the physics for 1 / CONTROL_RATE s."""
         action = np.clip(np.asarray(action, dtype=float), -1.0, 1.0)
+        previous = self._joints
         self._command(action)
-        for _ in range(self.substeps):
-            self.world.step()
+        self._move_arm(previous, self._joints)
         tcp = np.array(self.world.link_pose()[0]) - self._base
         self._tcp_velocity = (tcp - self._tcp) * CONTROL_RATE
         self._tcp = tcp
@@ -190,12 +190,19 @@ class UrRg2Env(gym.Env):
             self._target = target
         except KinematicsError:
             joints = self._joints  # refused (pedestal, reach): the arm holds its target
-        # The speed that takes the last target to this one in one step, fed forward as the
-        # trajectory controller feeds its path's speed.
-        velocities = (joints - self._joints) * CONTROL_RATE
+        self._joints = joints
+
+    def _move_arm(self, previous: np.ndarray, joints: np.ndarray) -> None:
+        """Take the arm from the last step's joint targets to this one's in one control period.
+
+        Here in one physics step: the speed that takes the last target to this one in one step
+        is fed forward, as the trajectory controller feeds its path's speed.
+        """
+        velocities = (joints - previous) * CONTROL_RATE
         self.world.set_arm_targets(dict(zip(ARM_JOINTS, joints.tolist())),
                                    dict(zip(ARM_JOINTS, velocities.tolist())))
-        self._joints = joints
+        for _ in range(self.substeps):
+            self.world.step()
 
     def close(self) -> None:
         """Disconnect the physics world."""
@@ -271,6 +278,23 @@ class PickEnv(UrRg2Env):
                 self.world.open_gripper()
             self._closed = closed
         super()._command(action)
+
+    def _move_arm(self, previous: np.ndarray, joints: np.ndarray) -> None:
+        """Move along a cubic from rest at the last target to rest at this one, as in the graph.
+
+        The policy node sends each step as a one-point goal, which the trajectory controller
+        runs as a cubic ending at rest on the point. Ending every step at rest also keeps the
+        TCP where the policy sent it: fed the speed forward and left to run on (Reach's way),
+        the arm overshot a fast descent by up to 2 cm, closing the fingers over the ball's top.
+        """
+        change = joints - previous
+        for k in range(1, self.substeps + 1):
+            s = k / self.substeps
+            positions = previous + change * (s * s * (3.0 - 2.0 * s))
+            velocities = change * (6.0 * s * (1.0 - s) * CONTROL_RATE)
+            self.world.set_arm_targets(dict(zip(ARM_JOINTS, positions.tolist())),
+                                       dict(zip(ARM_JOINTS, velocities.tolist())))
+            self.world.step()
 
     def _observe(self) -> dict[str, np.ndarray]:
         # Once per step (and at the reset, where the ball lies still where it was put).

@@ -15,7 +15,7 @@ from ur_rg2_learning.envs import MAX_STEP
 
 # The TCP this far above the ball's centre grasps it low between the pads, as the motion
 # node's pick does; the approach comes down from APPROACH_HEIGHT once over the ball.
-GRASP_HEIGHT = 0.01  # m
+GRASP_HEIGHT = 0.003  # m
 APPROACH_HEIGHT = 0.08  # m
 OVER = 0.005  # m: horizontally this near the ball the TCP is over it
 AT_GRASP = 0.005  # m: vertically this near the grasp height it closes

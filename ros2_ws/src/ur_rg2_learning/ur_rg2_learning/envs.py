@@ -51,6 +51,7 @@ START_JITTER = 0.05
 TARGET_LOW = (-0.8, -0.8, None)
 TARGET_HIGH = (0.8, 0.8, 0.4)
 OBSERVATION_BOUND = 10.0  # m, m/s
+GRIPPER_TIMEOUT = 1.5  # s: the RG2 closes its full 110 mm in under 1 s
 
 
 _DOWN = gripper_down((0.0, 0.0, 0.0), 0.0)
@@ -73,6 +74,33 @@ def start_joints(arm: ArmKinematics, position: np.ndarray) -> np.ndarray:
     """Return the joints with the TCP at ``position`` in the pick posture (KinematicsError)."""
     posture = np.array([math.atan2(position[1], position[0]), *PICK_POSTURE, 0.0])
     return arm.solve(tcp_pose(position), posture)
+
+
+def reach_observation(tcp: np.ndarray, tcp_velocity: np.ndarray,
+                      goal: np.ndarray) -> dict[str, np.ndarray]:
+    """Return Reach's observation dict (base_link, m, m/s): the env's and the policy node's."""
+    return {
+        'observation': np.concatenate([tcp, tcp_velocity]).astype(np.float32),
+        'achieved_goal': np.asarray(tcp, dtype=np.float32),
+        'desired_goal': np.asarray(goal, dtype=np.float32),
+    }
+
+
+def pick_observation(tcp: np.ndarray, tcp_velocity: np.ndarray, opening: float,
+                     ball: np.ndarray, ball_velocity: np.ndarray,
+                     goal: np.ndarray) -> dict[str, np.ndarray]:
+    """Return Pick's observation dict (base_link, m, m/s): the env's and the policy node's."""
+    return {
+        'observation': np.concatenate([tcp, tcp_velocity, [opening], ball, ball - tcp,
+                                       ball_velocity]).astype(np.float32),
+        'achieved_goal': np.asarray(ball, dtype=np.float32),
+        'desired_goal': np.asarray(goal, dtype=np.float32),
+    }
+
+
+def pick_goal(ball: np.ndarray) -> np.ndarray:
+    """Return Pick's goal for a ball lying with its centre at ``ball`` (base_link)."""
+    return np.asarray(ball, dtype=float) + (0.0, 0.0, LIFT_GOAL)
 
 
 def _vector(size: int) -> spaces.Box:
@@ -232,11 +260,7 @@ class ReachEnv(UrRg2Env):
         self._goal = ball + (0.0, 0.0, BALL_RADIUS)
 
     def _observe(self) -> dict[str, np.ndarray]:
-        return {
-            'observation': np.concatenate([self._tcp, self._tcp_velocity]).astype(np.float32),
-            'achieved_goal': self._tcp.astype(np.float32),
-            'desired_goal': self._goal.astype(np.float32),
-        }
+        return reach_observation(self._tcp, self._tcp_velocity, self._goal)
 
     def _is_success(self) -> bool:
         return bool(np.linalg.norm(self._tcp - self._goal) < REACH_TOLERANCE)
@@ -267,11 +291,12 @@ class PickEnv(UrRg2Env):
     def _start_episode(self, ball: np.ndarray) -> None:
         self._closed = False
         self._ball = ball
-        self._goal = ball + (0.0, 0.0, LIFT_GOAL)
+        self._goal = pick_goal(ball)
 
     def _command(self, action: np.ndarray) -> None:
         closed = bool(action[3] < 0.0)
-        if closed != self._closed:
+        self._gripper_moved = closed != self._closed
+        if self._gripper_moved:
             if closed:
                 self.world.close_gripper()
             else:
@@ -295,20 +320,23 @@ class PickEnv(UrRg2Env):
             self.world.set_arm_targets(dict(zip(ARM_JOINTS, positions.tolist())),
                                        dict(zip(ARM_JOINTS, velocities.tolist())))
             self.world.step()
+        if self._gripper_moved:
+            # A step that opens or closes the RG2 lasts until its fingers stop (on the ball,
+            # or at the end of their travel), as a gripper action's result comes then: the
+            # policy node waits for it too. So no step's observation is of fingers half-way,
+            # and a policy needs no waiting of its own for the grasp.
+            for _ in range(round(GRIPPER_TIMEOUT * CONTROL_RATE * self.substeps)):
+                self.world.step()
+                if self.world.gripper_stopped():
+                    break
 
     def _observe(self) -> dict[str, np.ndarray]:
         # Once per step (and at the reset, where the ball lies still where it was put).
         ball = np.array(self.world.body_position(self.world.ball)) - self._base
         self._ball_velocity = (ball - self._ball) * CONTROL_RATE
         self._ball = ball
-        opening = self.world.gripper_opening()
-        return {
-            'observation': np.concatenate([
-                self._tcp, self._tcp_velocity, [opening], self._ball, self._ball - self._tcp,
-                self._ball_velocity]).astype(np.float32),
-            'achieved_goal': self._ball.astype(np.float32),
-            'desired_goal': self._goal.astype(np.float32),
-        }
+        return pick_observation(self._tcp, self._tcp_velocity, self.world.gripper_opening(),
+                                self._ball, self._ball_velocity, self._goal)
 
     def _is_success(self) -> bool:
         bottom = self._ball[2] - BALL_RADIUS + self._base[2]  # above the floor (world z = 0)

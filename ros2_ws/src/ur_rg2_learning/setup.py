@@ -7,7 +7,7 @@ setup(
     version='0.1.0',
     packages=find_packages(exclude=['test']),
     # The trained Reach policy the policy node runs by default.
-    package_data={package_name: ['policies/reach/*']},
+    package_data={package_name: ['policies/reach/*', 'policies/pick/*']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),

@@ -12,6 +12,7 @@ from geometry_msgs.msg import PointStamped, PoseStamped
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
+from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
@@ -105,6 +106,8 @@ def test_the_shipped_pick_policy_lifts_balls_the_camera_sees(ros_graph):
     driving: list[bool] = []
     probe.create_subscription(Bool, 'policy/driving', lambda m: driving.append(m.data),
                               LATCHED_QOS)
+    joints: list[JointState] = []
+    probe.create_subscription(JointState, 'joint_states', joints.append, 10)
     run = probe.create_client(Trigger, 'policy/run')
     reset = probe.create_client(Trigger, 'reset')
     opener = probe.create_client(Trigger, 'gripper/open')
@@ -137,9 +140,14 @@ def test_the_shipped_pick_policy_lifts_balls_the_camera_sees(ros_graph):
         placement = (distance * np.cos(heading), distance * np.sin(heading), RADIUS)
         call(opener)
         call(reset)
+        wait_for(lambda: joints and np.abs(joints[-1].position[:6]).max() < 0.01, TIMEOUT,
+                 'the arm at home')
         sim.set_parameters([Parameter('ball_position', value=list(placement))])
-        seen.clear()
-        wait_for(lambda: len(seen) > 3, TIMEOUT, f'vision to see the ball at {placement}')
+        wait_for(lambda at=placement: np.linalg.norm(np.subtract(
+            [truth[-1].pose.position.x, truth[-1].pose.position.y], at[:2])) < 0.005,
+            TIMEOUT, 'the ball at its placement')
+        seen.clear()  # frames from before the move may still come
+        wait_for(lambda: len(seen) > 6, TIMEOUT, f'vision to see the ball at {placement}')
         driving.clear()
         started = call(run)
         assert started.success, started.message

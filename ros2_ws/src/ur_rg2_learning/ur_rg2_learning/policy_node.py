@@ -319,20 +319,26 @@ class PolicyNode(Node):
         """Return Pick's observation, or None when the episode ended at this step."""
         if opening is None:
             raise ValueError('no RG2 finger joints in joint_states')
-        try:
-            ball = self._ball_centre()
-            episode['seen'] = (ball, tcp)
-        except ValueError:
-            # The fingers hide much of a held ball from the camera: while it is held it moves
-            # with the TCP from where it was last seen; the first step needs it seen.
-            if 'seen' not in episode:
-                raise
-            seen, tcp_then = episode['seen']
-            ball = seen + (tcp - tcp_then) * self._held(episode, opening, seen, tcp_then)
+        gripping = episode['closed'] and abs(opening - 2 * self._radius()) < _GRASP_TOLERANCE
+        if not gripping:
+            episode['held_at'] = None
+        if episode.get('held_at') is not None:
+            # Held, the ball moves with the TCP; the fingers hide much of it from the camera,
+            # whose estimate of what is left of it is worse than this.
+            ball = tcp + episode['held_at']
+        else:
+            try:
+                ball = self._ball_centre()
+            except ValueError:
+                if episode['ball'] is None:
+                    raise
+                ball = episode['ball']  # hidden by the arm: it lies where it was last seen
+            if gripping and np.linalg.norm(ball - tcp) < _HELD_DISTANCE:
+                episode['held_at'] = ball - tcp
         previous = episode['ball']
         ball_velocity = np.zeros(3) if previous is None else (ball - previous) * CONTROL_RATE
         episode['ball'] = ball
-        held = self._held(episode, opening, ball, tcp)
+        held = episode.get('held_at') is not None
         height = float(ball[2] - self._radius() - arm.floor_z)  # its bottom above the floor
         lifted = held and height >= LIFT_SUCCESS
         at_goal = np.linalg.norm(ball - episode['goal']) < PICK_GOAL_TOLERANCE
@@ -344,12 +350,6 @@ class PolicyNode(Node):
                       f'{episode["step"]} steps', reached=lifted)
             return None
         return pick_observation(tcp, velocity, opening, ball, ball_velocity, episode['goal'])
-
-    def _held(self, episode: dict, opening: float, ball: np.ndarray, tcp: np.ndarray) -> bool:
-        """Return whether the closed RG2 holds the ball (its opening, the ball at the TCP)."""
-        return bool(episode['closed']
-                    and abs(opening - 2 * self._radius()) < _GRASP_TOLERANCE
-                    and np.linalg.norm(ball - tcp) < _HELD_DISTANCE)
 
     def _on_step_goal(self, future, episode: dict) -> None:
         handle = future.result()
@@ -396,8 +396,11 @@ class PolicyNode(Node):
             self._episode = None
         self._driving.publish(Bool(data=False))
         seconds = time.monotonic() - episode['started']
-        log = self.get_logger().info if reached else self.get_logger().warning
-        log(f'policy episode: {outcome} ({seconds:.1f} s)')
+        # rclpy refuses two severities from one call site: one call each.
+        if reached:
+            self.get_logger().info(f'policy episode: {outcome} ({seconds:.1f} s)')
+        else:
+            self.get_logger().warning(f'policy episode: {outcome} ({seconds:.1f} s)')
 
 
 def main(args: list[str] | None = None) -> int:

@@ -1,10 +1,10 @@
 """``train_policy``: train DDPG (or TD3; Stable-Baselines3, with HER) on one environment.
 
 For Pick, ``--demos N`` puts N scripted pick episodes into the replay buffer and ``--bc W``
-adds behaviour cloning on them (Nair et al. 2018): after every DDPG update, one actor update
-toward the demonstrated actions, weighted W, on the demonstrations where the critic rates
-the demonstrated action above the actor's own (the Q-filter); ``--pretrain N`` clones them
-N updates before the first environment step.
+adds behaviour cloning on them to every actor update (Nair et al. 2018): the squared
+distance to the demonstrated actions where the critic rates them above the actor's own (the
+Q-filter), weighted W times the batch's mean |Q| (as TD3+BC); ``--pretrain N`` clones them N
+updates before the first environment step.
 
 Shows a progress bar (rate, ETA) and writes to ``--out``: the actor for the run path
 (``actor.npz`` + ``policy.json``, see :mod:`ur_rg2_learning.actor`), the whole
@@ -130,9 +130,9 @@ def main(argv: list[str] | None = None) -> int:
     def evaluate(steps: int) -> None:
         actor = export(model, args, env, time.monotonic() - started, curve)
         rate = success_rate(actor, args.eval_episodes, CURVE_SEED, args.env)
-        if not curve or rate > max(point[1] for point in curve):
+        if not curve or rate >= max(point[1] for point in curve):
             # DDPG's success can collapse and recover from one point to the next: the best
-            # point's actor is kept too.
+            # point's actor is kept too (the latest of equals: it has learned the longest).
             actor.meta['best_of_curve'] = {'steps': steps, 'success': rate}
             actor.save(out / 'best')
         curve.append((steps, rate, time.monotonic() - started))
@@ -227,17 +227,29 @@ def scaled_extractor() -> type:
 def with_cloning(algorithm: type) -> type:
     """Return a subclass of a Stable-Baselines3 TD3-family class running ``model.cloning``.
 
-    After each of its updates it runs one update of :class:`Cloning`, when set.
+    Its actor updates then minimise the algorithm's actor loss plus the cloning loss: the
+    cloning gradient is added to the actor's before each step of its optimiser.
     """
 
     class WithCloning(algorithm):
         cloning: Cloning | None = None
 
         def train(self, gradient_steps: int, batch_size: int = 100) -> None:
-            super().train(gradient_steps, batch_size)
-            if self.cloning is not None:
-                for _ in range(gradient_steps):
-                    self.cloning.update(batch_size, q_filter=True)
+            if self.cloning is None:
+                super().train(gradient_steps, batch_size)
+                return
+            optimizer = self.actor.optimizer
+            step = optimizer.step
+
+            def step_with_cloning(*args, **kwargs):
+                self.cloning.backward(batch_size, q_filter=True)
+                return step(*args, **kwargs)
+
+            optimizer.step = step_with_cloning
+            try:
+                super().train(gradient_steps, batch_size)
+            finally:
+                del optimizer.step
 
         def _excluded_save_params(self) -> list[str]:
             return [*super()._excluded_save_params(), 'cloning']
@@ -249,10 +261,12 @@ def with_cloning(algorithm: type) -> type:
 class Cloning:
     """Behaviour cloning of demonstrations into a TD3-family actor (Nair et al., 2018).
 
-    Each update draws a batch of demonstrated steps and moves the actor's actions toward
-    the demonstrated ones (mean squared error times ``weight``) with the actor's optimiser;
-    with the Q-filter only on the steps where the critic values the demonstrated action
-    above the actor's, so that the actor may outgrow a demonstrator the critic finds worse.
+    Each update draws a batch of demonstrated steps; the loss is the squared distance from the
+    actor's actions to the demonstrated ones, on the steps where the critic values the
+    demonstrated action above the actor's (the Q-filter, so that the actor may outgrow a
+    demonstrator the critic finds worse), times ``weight`` and the batch's mean |Q| (as
+    TD3+BC, Fujimoto and Gu 2021, balances it against the actor loss -Q, whatever the scale
+    of the returns).
     """
 
     def __init__(self, model, demonstrations: dict[str, np.ndarray], weight: float) -> None:
@@ -268,13 +282,19 @@ class Cloning:
         self._rng = np.random.default_rng(model.seed)
 
     def pretrain(self, updates: int, batch_size: int) -> None:
-        """Clone the demonstrations ``updates`` times (no critic yet: no Q-filter)."""
+        """Clone the demonstrations ``updates`` times (no critic yet: plain cloning)."""
+        optimizer = self.model.actor.optimizer
         for _ in range(updates):
-            self.update(batch_size, q_filter=False, weight=1.0)
+            optimizer.zero_grad()
+            self.backward(batch_size, q_filter=False)
+            optimizer.step()
         self.model.actor_target.load_state_dict(self.model.actor.state_dict())
 
-    def update(self, batch_size: int, q_filter: bool, weight: float | None = None) -> float:
-        """Run one actor update on a batch of demonstrations; return its loss."""
+    def backward(self, batch_size: int, q_filter: bool) -> float:
+        """Add the gradient of the cloning loss on a batch to the actor's; return the loss.
+
+        Without the Q-filter (before there is a critic) the loss is the plain squared error.
+        """
         torch = self._torch
         model = self.model
         rows = torch.as_tensor(self._rng.integers(0, len(self.actions), batch_size))
@@ -284,13 +304,14 @@ class Cloning:
         error = ((actions - demonstrated) ** 2).sum(dim=1)
         if q_filter:
             with torch.no_grad():
-                better = (model.critic.q1_forward(observations, demonstrated)
-                          > model.critic.q1_forward(observations, actions)).float()
-            error = error * better.squeeze(1)
-        loss = (self.weight if weight is None else weight) * error.mean()
-        model.actor.optimizer.zero_grad()
+                q_demonstrated = model.critic.q1_forward(observations, demonstrated)
+                q_actor = model.critic.q1_forward(observations, actions)
+                better = (q_demonstrated > q_actor).float().squeeze(1)
+                scale = self.weight * q_actor.abs().mean()
+            loss = scale * (error * better).mean()
+        else:
+            loss = error.mean()
         loss.backward()
-        model.actor.optimizer.step()
         return loss.item()
 
 

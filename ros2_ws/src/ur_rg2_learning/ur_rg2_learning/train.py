@@ -69,6 +69,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--bc', type=float, default=0.0,
                         help='weight of the behaviour-cloning updates on the demonstrations '
                         '(0: none; needs --demos)')
+    parser.add_argument('--no-q-filter', dest='q_filter', action='store_false',
+                        help='clone every demonstrated step, not only those the critic '
+                        'rates above the actor')
     parser.add_argument('--pretrain', type=int, default=0,
                         help='behaviour-cloning updates of the actor before the first step '
                         '(0; needs --demos)')
@@ -121,7 +124,7 @@ def main(argv: list[str] | None = None) -> int:
     started = time.monotonic()
     demonstrations = add_demonstrations(model.replay_buffer, args.env, args.demos)
     if args.bc or args.pretrain:
-        model.cloning = Cloning(model, demonstrations, args.bc)
+        model.cloning = Cloning(model, demonstrations, args.bc, args.q_filter)
         model.cloning.pretrain(args.pretrain, h['batch_size'])
 
     # The data set command's bar (rate, ETA) on a terminal; a line per curve point otherwise.
@@ -242,7 +245,7 @@ def with_cloning(algorithm: type) -> type:
             step = optimizer.step
 
             def step_with_cloning(*args, **kwargs):
-                self.cloning.backward(batch_size, q_filter=True)
+                self.cloning.backward(batch_size, critic=True)
                 return step(*args, **kwargs)
 
             optimizer.step = step_with_cloning
@@ -269,12 +272,14 @@ class Cloning:
     of the returns).
     """
 
-    def __init__(self, model, demonstrations: dict[str, np.ndarray], weight: float) -> None:
+    def __init__(self, model, demonstrations: dict[str, np.ndarray], weight: float,
+                 q_filter: bool = True) -> None:
         import torch
 
         self._torch = torch
         self.model = model
         self.weight = weight
+        self.q_filter = q_filter
         device = model.device
         self.actions = torch.as_tensor(demonstrations['action'], device=device)
         self.observations = {key: torch.as_tensor(demonstrations[key], device=device)
@@ -286,14 +291,14 @@ class Cloning:
         optimizer = self.model.actor.optimizer
         for _ in range(updates):
             optimizer.zero_grad()
-            self.backward(batch_size, q_filter=False)
+            self.backward(batch_size, critic=False)
             optimizer.step()
         self.model.actor_target.load_state_dict(self.model.actor.state_dict())
 
-    def backward(self, batch_size: int, q_filter: bool) -> float:
+    def backward(self, batch_size: int, critic: bool) -> float:
         """Add the gradient of the cloning loss on a batch to the actor's; return the loss.
 
-        Without the Q-filter (before there is a critic) the loss is the plain squared error.
+        Without a ``critic`` (before there is one) the loss is the plain squared error.
         """
         torch = self._torch
         model = self.model
@@ -302,13 +307,13 @@ class Cloning:
         demonstrated = self.actions[rows]
         actions = model.actor(observations)
         error = ((actions - demonstrated) ** 2).sum(dim=1)
-        if q_filter:
+        if critic:
             with torch.no_grad():
                 q_demonstrated = model.critic.q1_forward(observations, demonstrated)
                 q_actor = model.critic.q1_forward(observations, actions)
                 better = (q_demonstrated > q_actor).float().squeeze(1)
                 scale = self.weight * q_actor.abs().mean()
-            loss = scale * (error * better).mean()
+            loss = scale * (error * better if self.q_filter else error).mean()
         else:
             loss = error.mean()
         loss.backward()
@@ -335,6 +340,7 @@ def export(model, args: argparse.Namespace, env: gym.Env, seconds: float,
         'seed': args.seed,
         'demos': args.demos,
         'bc': args.bc,
+        'q_filter': args.q_filter,
         'pretrain': args.pretrain,
         'train_seconds': round(seconds, 1),
         'hyperparameters': dict(HYPERPARAMETERS, input_scale=INPUT_SCALE[args.env]),

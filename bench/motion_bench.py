@@ -146,7 +146,13 @@ class _Probe:
 
     def run_policy(self, timeout: float = 120.0) -> Trigger.Response:
         """Start a policy episode and wait for its end (policy/driving false)."""
+        deadline = time.monotonic() + CALL_TIMEOUT_S
         answer = self.call('policy/run')
+        # Just started, the node may not have the sim's joint_states or controllers yet.
+        while (not answer.success and time.monotonic() < deadline
+               and ('received yet' in answer.message or 'not available' in answer.message)):
+            time.sleep(0.5)
+            answer = self.call('policy/run')
         if answer.success:
             self.wait(lambda: self.driving is True, CALL_TIMEOUT_S, 'policy/driving true')
             self.wait(lambda: self.driving is False, timeout, 'the policy episode to end')

@@ -61,6 +61,7 @@ from ur_rg2_learning.actor import Actor, PolicyError
 from ur_rg2_learning.envs import (
     BALL_RADIUS,
     CONTROL_RATE,
+    LIFT_GOAL,
     LIFT_SUCCESS,
     MAX_STEP,
     PICK_GOAL_TOLERANCE,
@@ -211,8 +212,7 @@ class PolicyNode(Node):
             start_q = start_joints(arm, start)
             if self._picks:
                 try:
-                    plan_pick(arm, start_q, centre, APPROACH_HEIGHT, pick_goal(centre)[2]
-                              - centre[2])
+                    plan_pick(arm, start_q, centre, APPROACH_HEIGHT, LIFT_GOAL)
                 except KinematicsError as error:
                     raise ValueError(f'the ball is out of reach: {error}') from None
         except (ValueError, KinematicsError) as error:

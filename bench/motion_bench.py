@@ -247,6 +247,11 @@ def pick_trials(count: int, domain_id: int, policy: bool = False) -> dict:
             # then place it anew. Only the first starts from home.
             probe.call('gripper/open')
             probe.set_ball(placement)
+            # Frames rendered before the move may still come: count those after the sim has
+            # the ball there.
+            probe.wait(lambda at=placement: probe.truth is not None and math.dist(
+                (probe.truth.pose.position.x, probe.truth.pose.position.y), at[:2]) < 0.005,
+                10.0, 'the ball at its placement')
             with probe.changed:
                 wanted = probe.seen + 6  # a few frames may predate the move
             try:

@@ -1,4 +1,4 @@
-"""Benchmark of the learning environments and the shipped Reach policy.
+"""Benchmark of the learning environments and the shipped Reach and Pick policies.
 
 Environment steps per second with random actions (episodes reset as they end): one
 environment in this process; ``gymnasium.vector.AsyncVectorEnv`` with one worker process per
@@ -6,8 +6,9 @@ core (every step a round trip from this process to each worker), with the Reach 
 and with an environment that does nothing but has Reach's spaces and info (the most
 AsyncVectorEnv itself can deliver here); one process per core, each stepping its own
 environment (as distributed trainers' environment runners do). Then the
-shipped Reach policy over 100 held-out episodes (evaluate_policy's seeds), with the training
-wall time its policy.json recorded. No torch needed.
+shipped Reach and Pick policies over 100 held-out episodes (evaluate_policy's seeds), with
+the training wall time their policy.json recorded (the Pick policy in the live graph is in
+motion_bench, beside pick_ball). No torch needed.
 Run alone: python -m bench.learning_bench
 """
 
@@ -130,6 +131,14 @@ def run() -> list[tuple[str, str, str]]:
                  'episodes', f'{success:.2f}', '>= 0.95'))
     rows.append((f'{REACH_ID} DDPG + HER: training wall time ({actor.meta["timesteps"]} steps, '
                  'recorded by train_policy)', f'{minutes:.1f} min', '<= 20 min'))
+    actor = Actor.load(shipped_policy('pick'))
+    success = success_rate(actor, EPISODES, DEFAULT_SEED)
+    minutes = actor.meta['train_seconds'] / 60
+    rows.append((f'{PICK_ID} shipped policy: success over {EPISODES} held-out episodes',
+                 f'{success:.2f}', '>= 0.95'))
+    rows.append((f'{PICK_ID}: training wall time ({actor.meta["demos"]} demos, '
+                 f'{actor.meta["pretrain"]} cloning updates, {actor.meta["timesteps"]} steps, '
+                 'recorded by train_policy)', f'{minutes:.1f} min', '<= 30 min'))
     return rows
 
 

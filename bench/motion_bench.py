@@ -7,8 +7,11 @@
   (seeded) across the floor the camera sees in the arm's reach, then ``pick_ball``. The ball's
   true pose and the TCP from /tf judge whether the ball is really held, so a success claimed
   for a ball not held (a false claim) is counted.
+* the learned pick beside it: the same graph with the ``policy`` node running the shipped
+  Pick policy (``policy_dir:=pick``), ``policy/run`` until ``policy/driving`` falls, on the
+  placements of the region Pick trains on, judged by the same ground truth.
 
-Run alone with ``python -m bench.motion_bench [--picks N]``.
+Run alone with ``python -m bench.motion_bench [--picks N] [--policy-picks N]``.
 """
 
 from __future__ import annotations
@@ -30,10 +33,12 @@ from rcl_interfaces.srv import SetParameters
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
+from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 from ur_rg2_common.contract import LATCHED_QOS
 from ur_rg2_common.tf_buffer import FrameLookupError, TransformBuffer, quaternion_from_matrix
+from ur_rg2_learning.envs import BALL_DISTANCE, BALL_HEADING
 from ur_rg2_motion.kinematics import ArmKinematics, Box, KinematicsError
 from ur_rg2_motion.planning import gripper_down
 from ur_rg2_sim.robot_model import write_robot_urdf
@@ -47,6 +52,7 @@ IK_WARMUP = 100
 IK_TARGET_MS = 0.5
 SEED = 20261123
 PICKS = 100
+POLICY_PICKS = 20
 PICK_SUCCESS_TARGET = 0.97
 PICK_TIME_TARGET_S = 10.0
 JOG_TRIALS = 100
@@ -107,6 +113,8 @@ class _Probe:
         self.sim_time = 0.0  # s, the latest joint_states stamp
         self.truth: PoseStamped | None = None
         self.seen = 0
+        self.driving: bool | None = None
+        node.create_subscription(Bool, 'policy/driving', self._on_driving, LATCHED_QOS)
         node.create_subscription(TFMessage, '/tf_static', self.tree.add_message, LATCHED_QOS)
         node.create_subscription(TFMessage, '/tf', self.tree.add_message, 100)
         node.create_subscription(JointState, 'joint_states', self._on_state, 100)
@@ -130,6 +138,25 @@ class _Probe:
 
     def _on_truth(self, msg: PoseStamped) -> None:
         self.truth = msg
+
+    def _on_driving(self, msg: Bool) -> None:
+        with self.changed:
+            self.driving = msg.data
+            self.changed.notify_all()
+
+    def run_policy(self, timeout: float = 120.0) -> Trigger.Response:
+        """Start a policy episode and wait for its end (policy/driving false)."""
+        deadline = time.monotonic() + CALL_TIMEOUT_S
+        answer = self.call('policy/run')
+        # Just started, the node may not have the sim's joint_states or controllers yet.
+        while (not answer.success and time.monotonic() < deadline
+               and ('received yet' in answer.message or 'not available' in answer.message)):
+            time.sleep(0.5)
+            answer = self.call('policy/run')
+        if answer.success:
+            self.wait(lambda: self.driving is True, CALL_TIMEOUT_S, 'policy/driving true')
+            self.wait(lambda: self.driving is False, timeout, 'the policy episode to end')
+        return answer
 
     def _on_ball(self, _msg: PointStamped) -> None:
         with self.changed:
@@ -183,29 +210,48 @@ class _Probe:
 
 
 @contextmanager
-def _graph(domain_id: int, camera: bool) -> Iterator[_Probe]:
+def _graph(domain_id: int, camera: bool, policy: bool = False) -> Iterator[_Probe]:
     sim_parameters = {} if camera else {'camera_rate': '0.0'}
     with node_process('sim', sim_parameters, domain_id, ready='simulating',
                       timeout=START_TIMEOUT_S), \
             node_process('vision', {}, domain_id, ready='looking for the ball',
                          timeout=START_TIMEOUT_S) if camera else nullcontext(), \
             node_process('motion', {}, domain_id, ready='ready:', timeout=START_TIMEOUT_S), \
+            node_process('policy', {'policy_dir': 'pick'}, domain_id,
+                         ready='starts an episode', timeout=START_TIMEOUT_S) if policy \
+            else nullcontext(), \
             spun_node('motion_bench', domain_id) as node:
         yield _Probe(node)
 
 
-def pick_trials(count: int, domain_id: int) -> dict:
-    """Run ``count`` seeded picks; return the tallies and the times of the claimed successes."""
+def policy_placement(rng: np.random.Generator) -> tuple[float, float, float]:
+    """Return a ball position (world) in the region the Pick environment places balls in."""
+    radius = rng.uniform(*BALL_DISTANCE)
+    angle = rng.uniform(*BALL_HEADING)
+    return (radius * math.cos(angle), radius * math.sin(angle), BALL_RADIUS)
+
+
+def pick_trials(count: int, domain_id: int, policy: bool = False) -> dict:
+    """Run ``count`` seeded picks; return the tallies and the times of the claimed successes.
+
+    ``policy``: the learned pick (``policy/run``) instead of ``pick_ball``; it claims no
+    success in its answer, so a held ball is its success.
+    """
     rng = np.random.default_rng(SEED)
     tally = {'success': 0, 'false_claim': 0, 'failed': 0, 'not_seen': 0, 'times': [],
              'sim_times': [], 'failures': []}
-    with _graph(domain_id, camera=True) as probe:
+    with _graph(domain_id, camera=True, policy=policy) as probe:
         for trial in range(count):
-            placement = ball_placement(rng)
+            placement = policy_placement(rng) if policy else ball_placement(rng)
             # Each pick starts where the last one ended (the ball up in the gripper): drop it,
             # then place it anew. Only the first starts from home.
             probe.call('gripper/open')
             probe.set_ball(placement)
+            # Frames rendered before the move may still come: count those after the sim has
+            # the ball there.
+            probe.wait(lambda at=placement: probe.truth is not None and math.dist(
+                (probe.truth.pose.position.x, probe.truth.pose.position.y), at[:2]) < 0.005,
+                10.0, 'the ball at its placement')
             with probe.changed:
                 wanted = probe.seen + 6  # a few frames may predate the move
             try:
@@ -215,9 +261,11 @@ def pick_trials(count: int, domain_id: int) -> dict:
                 tally['not_seen'] += 1
                 continue
             started, sim_started = time.monotonic(), probe.sim_time
-            answer = probe.call('pick_ball')
+            answer = probe.run_policy() if policy else probe.call('pick_ball')
             took, sim_took = time.monotonic() - started, probe.sim_time - sim_started
             held = probe.held()
+            if policy and answer.success:
+                answer.success = held
             print(f'pick {trial + 1}/{count} at {placement[0]:.3f} {placement[1]:.3f}: '
                   f"{'held' if held else 'not held'}, {took:.1f} s ({sim_took:.1f} s simulated): "
                   f'{answer.message}', file=sys.stderr, flush=True)
@@ -276,7 +324,7 @@ def jog_latencies(domain_id: int) -> list[float]:
     return latencies
 
 
-def run(picks: int = PICKS) -> list[tuple[str, str, str]]:
+def run(picks: int = PICKS, policy_picks: int = POLICY_PICKS) -> list[tuple[str, str, str]]:
     """Return the benchmark rows (metric, measured, target)."""
     times, _ = ik_solve_times()
     p50, p99 = np.percentile(np.array(times) * 1e3, [50, 99])
@@ -302,11 +350,34 @@ def run(picks: int = PICKS) -> list[tuple[str, str, str]]:
                  f'<= {PICK_TIME_TARGET_S:g} s'))
     for failure in tally['failures']:
         print(f'pick: {failure}', file=sys.stderr)
+    if policy_picks:
+        rows += policy_pick_rows(policy_picks, domain_id + 2)
     return rows
+
+
+def policy_pick_rows(picks: int, domain_id: int) -> list[tuple[str, str, str]]:
+    """Return the rows of the learned pick (policy_dir:=pick) in the live graph."""
+    load = f'load {os.getloadavg()[0]:.1f}'
+    tally = pick_trials(picks, domain_id, policy=True)
+    tried = tally['success'] + tally['failed']
+    rate = tally['success'] / tried if tried else float('nan')
+    median = statistics.median(tally['times']) if tally['times'] else float('nan')
+    simulated = statistics.median(tally['sim_times']) if tally['sim_times'] else float('nan')
+    for failure in tally['failures']:
+        print(f'policy pick: {failure}', file=sys.stderr)
+    return [
+        (f'learned Pick (policy node, policy_dir:=pick) in the graph: ball held over {tried} '
+         'seeded placements (real-time factor 1, camera)',
+         f"{rate:.0%} ({tally['success']} held; {tally['not_seen']} not seen)", '>= 90%'),
+        ('learned Pick time, median (policy/run to the episode end, real-time factor 1)',
+         f'{median:.1f} s ({simulated:.1f} s of simulation time; {load})', '-'),
+    ]
 
 
 if __name__ == '__main__':
     from bench.__main__ import print_table
 
     count = int(sys.argv[sys.argv.index('--picks') + 1]) if '--picks' in sys.argv else PICKS
-    print_table(run(count))
+    policy_count = (int(sys.argv[sys.argv.index('--policy-picks') + 1])
+                    if '--policy-picks' in sys.argv else POLICY_PICKS)
+    print_table(run(count, policy_count))

@@ -10,7 +10,7 @@ import numpy as np
 import pybullet
 import pytest
 from tf_tree import buffer_of, ur_forward_kinematics
-from ur_rg2_common.contract import ARM_JOINTS
+from ur_rg2_common.contract import ARM_JOINTS, GRIPPER_JOINTS
 from ur_rg2_common.tf_buffer import pose_matrix, quaternion_from_matrix
 from ur_rg2_motion.kinematics import rotation_angle
 from ur_rg2_sim.camera import Camera, CameraConfig
@@ -21,7 +21,7 @@ from ur_rg2_sim.frames import (
     parse_joints,
     robot_description,
 )
-from ur_rg2_sim.robot_model import GRIPPER_JOINTS, ROBOT_MODELS
+from ur_rg2_sim.robot_model import ROBOT_MODELS
 from ur_rg2_sim.world import SimWorld, WorldConfig
 import yaml
 

@@ -8,10 +8,11 @@ back from /tf. The policy node runs the shipped Reach policy.
 import threading
 
 from conftest import start_sim, wait_for
-from geometry_msgs.msg import PointStamped
+from geometry_msgs.msg import PointStamped, PoseStamped
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
+from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
@@ -77,8 +78,82 @@ def test_policy_run_drives_the_tcp_to_the_ball(ros_graph):
     assert not busy.success and 'already running' in busy.message
     wait_for(lambda: driving and driving[-1], TIMEOUT, 'policy/driving true')
     wait_for(lambda: not driving[-1], 3 * TIMEOUT, 'the episode to end')
-    after = tcp_to_ball_top()
-    assert after < 1.5 * REACH_TOLERANCE < before, (before, after)
+    assert 1.5 * REACH_TOLERANCE < before
+    # This process's /tf may lag the node's last step on a loaded machine.
+    wait_for(lambda: tcp_to_ball_top() < 1.5 * REACH_TOLERANCE, 10.0,
+             f'the TCP at the ball top (it is {tcp_to_ball_top():.3f} m away)')
+
+
+PICK_PLACEMENTS = 5
+
+
+def test_the_shipped_pick_policy_lifts_balls_the_camera_sees(ros_graph):
+    """policy_dir:=pick, the ball from the vision node: placements never trained on."""
+    from ur_rg2_vision.vision_node import VisionNode
+
+    sim = start_sim(ros_graph, camera_rate=15.0, real_time_factor=1.0)
+    ros_graph.add(VisionNode(context=ros_graph.context))
+    policy = ros_graph.add(PolicyNode(context=ros_graph.context, parameter_overrides=[
+        Parameter('policy_dir', value='pick')]))
+    probe = ros_graph.node('probe')
+    tree = TransformBuffer()
+    probe.create_subscription(TFMessage, '/tf_static', tree.add_message, LATCHED_QOS)
+    probe.create_subscription(TFMessage, '/tf', tree.add_message, 100)
+    truth: list[PoseStamped] = []
+    probe.create_subscription(PoseStamped, 'ball/true_pose', truth.append, 10)
+    seen: list[PointStamped] = []
+    probe.create_subscription(PointStamped, 'ball/position', seen.append, 10)
+    driving: list[bool] = []
+    probe.create_subscription(Bool, 'policy/driving', lambda m: driving.append(m.data),
+                              LATCHED_QOS)
+    joints: list[JointState] = []
+    probe.create_subscription(JointState, 'joint_states', joints.append, 10)
+    run = probe.create_client(Trigger, 'policy/run')
+    reset = probe.create_client(Trigger, 'reset')
+    opener = probe.create_client(Trigger, 'gripper/open')
+    wait_for(lambda: policy._gripper.server_is_ready(), TIMEOUT, 'the gripper controller')
+
+    def call(client) -> Trigger.Response:
+        wait_for(client.service_is_ready, TIMEOUT, 'a service')
+        future = client.call_async(Trigger.Request())
+        wait_for(future.done, TIMEOUT, 'a service answer')
+        return future.result()
+
+    def held_now() -> bool:
+        ball = truth[-1].pose.position
+        tcp = tree.lookup('world', 'rg2_tcp')[:3, 3]
+        return ball.z > RADIUS + 0.1 and np.linalg.norm(tcp - (ball.x, ball.y, ball.z)) < 0.03
+
+    def held() -> bool:
+        # This process's /tf and ball/true_pose may lag the episode's end a little.
+        try:
+            wait_for(held_now, 5.0, 'the ball held')
+        except AssertionError:
+            return False
+        return True
+
+    # Placements seeded apart from every episode of training (the region the env samples).
+    rng = np.random.default_rng(20261125)
+    lifted = []
+    for _ in range(PICK_PLACEMENTS):
+        distance, heading = rng.uniform(0.37, 0.53), rng.uniform(-1.35, 0.3)
+        placement = (distance * np.cos(heading), distance * np.sin(heading), RADIUS)
+        call(opener)
+        call(reset)
+        wait_for(lambda: joints and np.abs(joints[-1].position[:6]).max() < 0.01, TIMEOUT,
+                 'the arm at home')
+        sim.set_parameters([Parameter('ball_position', value=list(placement))])
+        wait_for(lambda at=placement: np.linalg.norm(np.subtract(
+            [truth[-1].pose.position.x, truth[-1].pose.position.y], at[:2])) < 0.005,
+            TIMEOUT, 'the ball at its placement')
+        seen.clear()  # frames from before the move may still come
+        wait_for(lambda: len(seen) > 6, TIMEOUT, f'vision to see the ball at {placement}')
+        driving.clear()
+        started = call(run)
+        assert started.success, started.message
+        wait_for(lambda: driving and not driving[-1], 3 * TIMEOUT, 'the episode to end')
+        lifted.append(held())
+    assert sum(lifted) >= PICK_PLACEMENTS - 1, lifted
 
 
 def test_a_directory_without_a_policy_is_refused_at_start(ros_graph, tmp_path):

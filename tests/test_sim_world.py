@@ -5,10 +5,9 @@ import math
 from conftest import move_tcp, simulate
 import numpy as np
 import pytest
-from ur_rg2_common.contract import ARM_JOINTS
+from ur_rg2_common.contract import ARM_JOINTS, GRIPPER_JOINTS, RG2_MAX_OPENING
 from ur_rg2_sim.camera import Camera, CameraConfig
 from ur_rg2_sim.commands import CommandError, joint_targets
-from ur_rg2_sim.robot_model import GRIPPER_JOINTS, RG2_MAX_OPENING
 from ur_rg2_sim.simulation import Schedule, SimulationLoop
 from ur_rg2_sim.world import SimWorld, WorldConfig
 

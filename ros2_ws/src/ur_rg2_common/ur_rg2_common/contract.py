@@ -17,6 +17,10 @@ ARM_JOINTS = (
     'wrist_2_joint',
     'wrist_3_joint',
 )
+# The RG2's finger joints in joint_states (after the arm's), and its gripper_cmd range.
+GRIPPER_JOINTS = ('rg2_left_finger_joint', 'rg2_right_finger_joint')
+RG2_MAX_OPENING = 0.110  # m, between the finger pads (RG2 datasheet)
+RG2_MAX_FORCE = 40.0  # N (RG2 datasheet)
 TRAJECTORY_ACTION = 'joint_trajectory_controller/follow_joint_trajectory'
 GRIPPER_ACTION = 'gripper_controller/gripper_cmd'
 

@@ -50,6 +50,7 @@ START_JITTER = 0.05
 TARGET_LOW = (-0.8, -0.8, None)
 TARGET_HIGH = (0.8, 0.8, 0.4)
 OBSERVATION_BOUND = 10.0  # m, m/s
+GRIPPER_TIMEOUT = 1.5  # s: the RG2 closes its full 110 mm in under 1 s
 
 
 _DOWN = gripper_down((0.0, 0.0, 0.0), 0.0)
@@ -72,6 +73,33 @@ def start_joints(arm: ArmKinematics, position: np.ndarray) -> np.ndarray:
     """Return the joints with the TCP at ``position`` in the pick posture (KinematicsError)."""
     posture = np.array([math.atan2(position[1], position[0]), *PICK_POSTURE, 0.0])
     return arm.solve(tcp_pose(position), posture)
+
+
+def reach_observation(tcp: np.ndarray, tcp_velocity: np.ndarray,
+                      goal: np.ndarray) -> dict[str, np.ndarray]:
+    """Return Reach's observation dict (base_link, m, m/s): the env's and the policy node's."""
+    return {
+        'observation': np.concatenate([tcp, tcp_velocity]).astype(np.float32),
+        'achieved_goal': np.asarray(tcp, dtype=np.float32),
+        'desired_goal': np.asarray(goal, dtype=np.float32),
+    }
+
+
+def pick_observation(tcp: np.ndarray, tcp_velocity: np.ndarray, opening: float,
+                     ball: np.ndarray, ball_velocity: np.ndarray,
+                     goal: np.ndarray) -> dict[str, np.ndarray]:
+    """Return Pick's observation dict (base_link, m, m/s): the env's and the policy node's."""
+    return {
+        'observation': np.concatenate([tcp, tcp_velocity, [opening], ball, ball - tcp,
+                                       ball_velocity]).astype(np.float32),
+        'achieved_goal': np.asarray(ball, dtype=np.float32),
+        'desired_goal': np.asarray(goal, dtype=np.float32),
+    }
+
+
+def pick_goal(ball: np.ndarray) -> np.ndarray:
+    """Return Pick's goal for a ball lying with its centre at ``ball`` (base_link)."""
+    return np.asarray(ball, dtype=float) + (0.0, 0.0, LIFT_GOAL)
 
 
 def _vector(size: int) -> spaces.Box:
@@ -172,9 +200,9 @@ class UrRg2Env(gym.Env):
     def step(self, action: np.ndarray) -> tuple[dict, float, bool, bool, dict]:
         """Move the TCP (and the gripper), run the physics for 1 / CONTROL_RATE s."""
         action = np.clip(np.asarray(action, dtype=float), -1.0, 1.0)
+        previous = self._joints
         self._command(action)
-        for _ in range(self.substeps):
-            self.world.step()
+        self._move_arm(previous, self._joints)
         tcp = np.array(self.world.link_pose()[0]) - self._base
         self._tcp_velocity = (tcp - self._tcp) * CONTROL_RATE
         self._tcp = tcp
@@ -193,12 +221,19 @@ class UrRg2Env(gym.Env):
             self._target = target
         except KinematicsError:
             joints = self._joints  # refused (pedestal, reach): the arm holds its target
-        # The speed that takes the last target to this one in one step, fed forward as the
-        # trajectory controller feeds its path's speed.
-        velocities = (joints - self._joints) * CONTROL_RATE
+        self._joints = joints
+
+    def _move_arm(self, previous: np.ndarray, joints: np.ndarray) -> None:
+        """Take the arm from the last step's joint targets to this one's in one control period.
+
+        Here in one physics step: the speed that takes the last target to this one in one step
+        is fed forward, as the trajectory controller feeds its path's speed.
+        """
+        velocities = (joints - previous) * CONTROL_RATE
         self.world.set_arm_targets(dict(zip(ARM_JOINTS, joints.tolist())),
                                    dict(zip(ARM_JOINTS, velocities.tolist())))
-        self._joints = joints
+        for _ in range(self.substeps):
+            self.world.step()
 
     def close(self) -> None:
         """Disconnect the physics world."""
@@ -228,11 +263,7 @@ class ReachEnv(UrRg2Env):
         self._goal = ball + (0.0, 0.0, BALL_RADIUS)
 
     def _observe(self) -> dict[str, np.ndarray]:
-        return {
-            'observation': np.concatenate([self._tcp, self._tcp_velocity]).astype(np.float32),
-            'achieved_goal': self._tcp.astype(np.float32),
-            'desired_goal': self._goal.astype(np.float32),
-        }
+        return reach_observation(self._tcp, self._tcp_velocity, self._goal)
 
     def _is_success(self) -> bool:
         return bool(np.linalg.norm(self._tcp - self._goal) < REACH_TOLERANCE)
@@ -263,11 +294,12 @@ class PickEnv(UrRg2Env):
     def _start_episode(self, ball: np.ndarray) -> None:
         self._closed = False
         self._ball = ball
-        self._goal = ball + (0.0, 0.0, LIFT_GOAL)
+        self._goal = pick_goal(ball)
 
     def _command(self, action: np.ndarray) -> None:
         closed = bool(action[3] < 0.0)
-        if closed != self._closed:
+        self._gripper_moved = closed != self._closed
+        if self._gripper_moved:
             if closed:
                 self.world.close_gripper()
             else:
@@ -275,19 +307,39 @@ class PickEnv(UrRg2Env):
             self._closed = closed
         super()._command(action)
 
+    def _move_arm(self, previous: np.ndarray, joints: np.ndarray) -> None:
+        """Move along a cubic from rest at the last target to rest at this one, as in the graph.
+
+        The policy node sends each step as a one-point goal, which the trajectory controller
+        runs as a cubic ending at rest on the point. Ending every step at rest also keeps the
+        TCP where the policy sent it: fed the speed forward and left to run on (Reach's way),
+        the arm overshot a fast descent by up to 2 cm, closing the fingers over the ball's top.
+        """
+        change = joints - previous
+        for k in range(1, self.substeps + 1):
+            s = k / self.substeps
+            positions = previous + change * (s * s * (3.0 - 2.0 * s))
+            velocities = change * (6.0 * s * (1.0 - s) * CONTROL_RATE)
+            self.world.set_arm_targets(dict(zip(ARM_JOINTS, positions.tolist())),
+                                       dict(zip(ARM_JOINTS, velocities.tolist())))
+            self.world.step()
+        if self._gripper_moved:
+            # A step that opens or closes the RG2 lasts until its fingers stop (on the ball,
+            # or at the end of their travel), as a gripper action's result comes then: the
+            # policy node waits for it too. So no step's observation is of fingers half-way,
+            # and a policy needs no waiting of its own for the grasp.
+            for _ in range(round(GRIPPER_TIMEOUT * CONTROL_RATE * self.substeps)):
+                self.world.step()
+                if self.world.gripper_stopped():
+                    break
+
     def _observe(self) -> dict[str, np.ndarray]:
         # Once per step (and at the reset, where the ball lies still where it was put).
         ball = np.array(self.world.body_position(self.world.ball)) - self._base
         self._ball_velocity = (ball - self._ball) * CONTROL_RATE
         self._ball = ball
-        opening = self.world.gripper_opening()
-        return {
-            'observation': np.concatenate([
-                self._tcp, self._tcp_velocity, [opening], self._ball, self._ball - self._tcp,
-                self._ball_velocity]).astype(np.float32),
-            'achieved_goal': self._ball.astype(np.float32),
-            'desired_goal': self._goal.astype(np.float32),
-        }
+        return pick_observation(self._tcp, self._tcp_velocity, self.world.gripper_opening(),
+                                self._ball, self._ball_velocity, self._goal)
 
     def _is_success(self) -> bool:
         bottom = self._ball[2] - BALL_RADIUS + self._base[2]  # above the floor (world z = 0)

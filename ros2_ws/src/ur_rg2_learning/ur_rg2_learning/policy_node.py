@@ -1,17 +1,21 @@
-"""ROS 2 node ``ur_rg2_policy``: a trained Reach policy driving the live graph.
+"""ROS 2 node ``ur_rg2_policy``: a trained Reach or Pick policy driving the live graph.
 
 ``policy/run`` (std_srvs/Trigger) starts one episode: the arm first goes to the episode's
-start pose (the environment's, ur_rg2_learning.envs.START_TCP, in the pick posture), then
-the policy acts step by step. Its observation is built as the environment builds it: the TCP
-from ``joint_states`` (closed-form forward kinematics of ``robot_description``), the goal
-from the latest ``ball/position`` transformed through the tree into ``base_link``. Each action
-moves the TCP target as in the environment; the joints that reach it (closed-form inverse
-kinematics) go to the sim's ``joint_trajectory_controller/follow_joint_trajectory`` as a
-one-point trajectory due one control period (0.1 s) later, and the next step starts when the
-controller has finished it: in step with the simulation, as in training, however fast the sim
-runs and however loaded the machine is. The episode ends when the TCP is at the ball (the
-environment's success) or after the environment's episode length.
-``policy/driving`` (std_msgs/Bool, latched) says whether the policy is driving the arm.
+start pose (the environment's, ur_rg2_learning.envs.START_TCP, in the pick posture; for Pick
+the RG2 opens), then the policy acts step by step. Its observation is built as the
+environment builds it (ur_rg2_learning.envs.reach_observation / pick_observation): the TCP
+from ``joint_states`` (closed-form forward kinematics of ``robot_description``), the RG2's
+opening from its finger joints, the ball from the latest ``ball/position`` transformed
+through the tree into ``base_link``. Each action moves the TCP target as in the environment;
+the joints that reach it (closed-form inverse kinematics) go to the sim's
+``joint_trajectory_controller/follow_joint_trajectory`` as a one-point trajectory due one
+control period (0.1 s) later, and a change of Pick's gripper sign to
+``gripper_controller/gripper_cmd``; the next step starts when the controllers have finished
+them: in step with the simulation, as in training, however fast the sim runs and however
+loaded the machine is. A Reach episode ends when the TCP is at the ball's top; a Pick episode
+when the ball is held at its goal (15 cm above where it lay); both after the environment's
+episode length at the latest. ``policy/driving`` (std_msgs/Bool, latched) says whether the
+policy is driving the arm.
 """
 
 from __future__ import annotations
@@ -21,7 +25,7 @@ import sys
 import threading
 import time
 
-from control_msgs.action import FollowJointTrajectory
+from control_msgs.action import FollowJointTrajectory, GripperCommand
 from geometry_msgs.msg import PointStamped
 import numpy as np
 from rclpy.action import ActionClient
@@ -31,7 +35,17 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, String
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
-from ur_rg2_common.contract import ARM_JOINTS, LATCHED_QOS, TF_QOS, TRAJECTORY_ACTION, WORLD_FRAME
+from ur_rg2_common.contract import (
+    ARM_JOINTS,
+    GRIPPER_ACTION,
+    GRIPPER_JOINTS,
+    LATCHED_QOS,
+    RG2_MAX_FORCE,
+    RG2_MAX_OPENING,
+    TF_QOS,
+    TRAJECTORY_ACTION,
+    WORLD_FRAME,
+)
 from ur_rg2_common.parameters import ParameterSpec, declare_parameters
 from ur_rg2_common.spin import run_node
 from ur_rg2_common.tf_buffer import FrameLookupError, TransformBuffer
@@ -43,58 +57,75 @@ from ur_rg2_motion.kinematics import (
     urdf_velocity_limits,
 )
 from ur_rg2_motion.messages import ball_in_base_link, trajectory_goal
-from ur_rg2_motion.planning import plan_joint_move
+from ur_rg2_motion.planning import plan_joint_move, plan_pick
 
-from ur_rg2_learning import EPISODE_STEPS, REACH_ID
+from ur_rg2_learning import EPISODE_STEPS, PICK_ID, REACH_ID
 from ur_rg2_learning.actor import Actor, PolicyError
 from ur_rg2_learning.envs import (
     BALL_RADIUS,
     CONTROL_RATE,
+    LIFT_GOAL,
+    LIFT_SUCCESS,
     MAX_STEP,
+    PICK_GOAL_TOLERANCE,
     REACH_TOLERANCE,
     START_TCP,
+    pick_goal,
+    pick_observation,
+    reach_observation,
     start_joints,
     target_bounds,
     tcp_pose,
 )
+from ur_rg2_learning.scripted import APPROACH_HEIGHT
 
 NODE_NAME = 'ur_rg2_policy'
 _START_SPEED_SCALE = 0.4  # share of the joints' velocity limits for the move to the start
 _START_TIMEOUT = 30.0  # s for the start move beyond its duration
 _STEP_TIMEOUT = 10.0  # s for one step's goal to be answered and done
 
+# A closed RG2 holds the ball when its fingers stopped this near the ball's diameter (the
+# motion node's grasp check) with the ball this near the TCP.
+_GRASP_TOLERANCE = 0.02  # m of opening
+_HELD_DISTANCE = 0.03  # m, ball centre to TCP
+SHIPPED = ('reach', 'pick')
+
 _PARAMETERS = (
-    ParameterSpec('policy_dir', '', 'Directory of the trained Reach policy (train_policy '
-                  '--out); empty: the policy shipped with the package', read_only=True),
-    ParameterSpec('ball_radius', BALL_RADIUS, "The ball's radius, m: the goal is its top",
-                  bounds=(0.005, 0.2)),
+    ParameterSpec('policy_dir', 'reach', 'The policy to run: a directory written by '
+                  "train_policy --out, or a policy shipped with the package: 'reach' or "
+                  "'pick' (empty: 'reach')", read_only=True),
+    ParameterSpec('ball_radius', BALL_RADIUS, "The ball's radius, m: Reach's goal is its top, "
+                  "Pick's success its bottom 10 cm above the floor", bounds=(0.005, 0.2)),
     ParameterSpec('ball_timeout', 1.0, 'policy/run needs a ball/position received at most '
                   'this long ago, s', bounds=(0.05, 60.0)),
 )
 
 
-def shipped_policy() -> str:
-    """Return the directory of the Reach policy that comes with the package."""
-    return str(importlib.resources.files('ur_rg2_learning').joinpath('policies', 'reach'))
+def shipped_policy(name: str = 'reach') -> str:
+    """Return the directory of a policy that comes with the package (``reach``, ``pick``)."""
+    return str(importlib.resources.files('ur_rg2_learning').joinpath('policies', name))
 
 
 class PolicyNode(Node):
-    """Runs a Reach policy episode on request, through the trajectory controller."""
+    """Runs a Reach or Pick policy episode on request, through the controllers' actions."""
 
     def __init__(self, **kwargs) -> None:
         super().__init__(NODE_NAME, **kwargs)
         values = declare_parameters(self, _PARAMETERS)
-        directory = values['policy_dir'] or shipped_policy()
+        name = values['policy_dir'] or 'reach'
+        directory = shipped_policy(name) if name in SHIPPED else name
         self.actor = Actor.load(directory)
-        if self.actor.env_id != REACH_ID:
+        if self.actor.env_id not in (REACH_ID, PICK_ID):
             raise PolicyError(f'{directory} holds a {self.actor.env_id} policy; the node runs '
-                              f'{REACH_ID} policies')
+                              f'{REACH_ID} and {PICK_ID} policies')
+        self._picks = self.actor.env_id == PICK_ID
         self._lock = threading.Lock()
         self._tf = TransformBuffer()
         self._arm = None
         self._robot: str | None = None
         self._velocity_limits: np.ndarray | None = None
         self._joints: np.ndarray | None = None
+        self._opening: float | None = None
         self._ball: tuple[float, PointStamped] | None = None
         self._episode: dict | None = None  # the running episode's state
 
@@ -105,12 +136,13 @@ class PolicyNode(Node):
                                  qos_profile_sensor_data)
         self.create_subscription(PointStamped, 'ball/position', self._on_ball, 10)
         self._trajectory = ActionClient(self, FollowJointTrajectory, TRAJECTORY_ACTION)
+        self._gripper = ActionClient(self, GripperCommand, GRIPPER_ACTION)
         self._driving = self.create_publisher(Bool, 'policy/driving', LATCHED_QOS)
         self._driving.publish(Bool(data=False))
         self.create_service(Trigger, 'policy/run', self._on_run)
         self.create_timer(1.0, self._watch)
-        self.get_logger().info(f'{REACH_ID} policy from {directory}; policy/run starts an '
-                               'episode')
+        self.get_logger().info(f'{self.actor.env_id} policy from {directory}; policy/run '
+                               'starts an episode')
 
     # -- state from the graph -------------------------------------------------------------------
 
@@ -131,6 +163,11 @@ class PolicyNode(Node):
             if np.isfinite(joints).all():
                 with self._lock:
                     self._joints = joints
+        if all(name in positions for name in GRIPPER_JOINTS):
+            opening = sum(positions[name] for name in GRIPPER_JOINTS)
+            if np.isfinite(opening):
+                with self._lock:
+                    self._opening = opening
 
     def _on_ball(self, message: PointStamped) -> None:
         with self._lock:
@@ -151,12 +188,11 @@ class PolicyNode(Node):
             self._arm = arm
         return arm
 
-    def _goal(self) -> np.ndarray:
-        """Return the ball's top in base_link from the latest ball/position (ValueError)."""
+    def _ball_centre(self) -> np.ndarray:
+        """Return the ball's centre in base_link from the latest ball/position (ValueError)."""
         with self._lock:
             ball = self._ball
-        centre = ball_in_base_link(self._tf, ball, self.get_parameter('ball_timeout').value)
-        return centre + (0.0, 0.0, self.get_parameter('ball_radius').value)
+        return ball_in_base_link(self._tf, ball, self.get_parameter('ball_timeout').value)
 
     # -- the episode ----------------------------------------------------------------------------
 
@@ -169,12 +205,19 @@ class PolicyNode(Node):
                 raise ValueError('an episode is already running')
             if joints is None:
                 raise ValueError('no joint_states received yet (is the sim running?)')
-            if not self._trajectory.server_is_ready():
-                raise ValueError(f'{TRAJECTORY_ACTION} is not available (is the sim running?)')
-            goal = self._goal()
+            clients = ((self._trajectory, TRAJECTORY_ACTION), (self._gripper, GRIPPER_ACTION))
+            for client, name in clients[:2 if self._picks else 1]:
+                if not client.server_is_ready():
+                    raise ValueError(f'{name} is not available (is the sim running?)')
+            centre = self._ball_centre()
             arm = self._kinematics()
             start = np.array(START_TCP)
             start_q = start_joints(arm, start)
+            if self._picks:
+                try:
+                    plan_pick(arm, start_q, centre, APPROACH_HEIGHT, LIFT_GOAL)
+                except KinematicsError as error:
+                    raise ValueError(f'the ball is out of reach: {error}') from None
         except (ValueError, KinematicsError) as error:
             response.message = f'refused: {error}'
             self.get_logger().warning(f'policy/run {response.message}')
@@ -182,7 +225,8 @@ class PolicyNode(Node):
         trajectory = plan_joint_move(joints, start_q, self._velocity_limits,
                                      _START_SPEED_SCALE, 1.0 / CONTROL_RATE)
         episode = {'target': start, 'joints': start_q, 'step': 0,
-                   'previous': None, 'started': time.monotonic(),
+                   'previous': None, 'started': time.monotonic(), 'closed': False,
+                   'goal': pick_goal(centre), 'ball': None, 'pending': 0,
                    'deadline': time.monotonic() + trajectory.duration + _START_TIMEOUT}
         with self._lock:
             self._episode = episode
@@ -190,10 +234,15 @@ class PolicyNode(Node):
         self._send(trajectory.times, trajectory.positions).add_done_callback(
             lambda future: self._on_start_goal(future, episode))
         response.success = True
-        response.message = (f'episode started: ball top at ({goal[0]:.3f}, {goal[1]:.3f}, '
-                            f'{goal[2]:.3f}) m in {BASE_LINK}')
+        what = 'ball' if self._picks else 'ball top'
+        shown = centre if self._picks else centre + (0.0, 0.0, self._radius())
+        response.message = (f'episode started: {what} at ({shown[0]:.3f}, {shown[1]:.3f}, '
+                            f'{shown[2]:.3f}) m in {BASE_LINK}')
         self.get_logger().info(f'policy/run: {response.message}')
         return response
+
+    def _radius(self) -> float:
+        return self.get_parameter('ball_radius').value
 
     def _on_start_goal(self, future, episode: dict) -> None:
         handle = future.result()
@@ -208,37 +257,36 @@ class PolicyNode(Node):
             self._end(episode, 'the move to the start pose ended early: '
                       f'{future.result().result.error_string}')
             return
-        self._step(episode)
+        if self._picks:  # the environment starts its episodes with the RG2 open
+            episode['pending'] = 1
+            self._send_gripper(RG2_MAX_OPENING, episode)
+        else:
+            self._step(episode)
 
     def _step(self, episode: dict) -> None:
-        """Observe, act and send one step; the next starts when the controller is done."""
+        """Observe, act and send one step; the next starts when the controllers are done."""
         with self._lock:
             if self._episode is not episode:
                 return
-            joints = self._joints
+            joints, opening = self._joints, self._opening
         try:
-            goal = self._goal()
             arm = self._kinematics()
+            tcp = arm.tcp_pose(joints)[:3, 3]
+            previous = episode['previous']
+            velocity = np.zeros(3) if previous is None else (tcp - previous) * CONTROL_RATE
+            episode['previous'] = tcp
+            if self._picks:
+                observation = self._pick_observation(episode, arm, tcp, velocity, opening)
+            else:
+                observation = self._reach_observation(episode, tcp, velocity)
         except (ValueError, KinematicsError) as error:
             self._end(episode, f'stopped: {error}')
             return
-        tcp = arm.tcp_pose(joints)[:3, 3]
-        previous = episode['previous']
-        velocity = np.zeros(3) if previous is None else (tcp - previous) * CONTROL_RATE
-        episode['previous'] = tcp
-        distance = float(np.linalg.norm(tcp - goal))
-        if distance < REACH_TOLERANCE:
-            self._end(episode, f'reached the ball: TCP {distance * 1000:.0f} mm from its top '
-                      f'after {episode["step"]} steps', reached=True)
+        if observation is None:  # the episode ended
             return
-        if episode['step'] >= EPISODE_STEPS[REACH_ID]:
-            self._end(episode, f'not reached after {episode["step"]} steps: TCP '
-                      f'{distance * 1000:.0f} mm from the ball top')
-            return
-        action = self.actor({'observation': np.concatenate([tcp, velocity]),
-                             'achieved_goal': tcp, 'desired_goal': goal})
+        action = np.clip(self.actor(observation), -1.0, 1.0)
         low, high = target_bounds(arm)
-        target = np.clip(episode['target'] + MAX_STEP * np.clip(action, -1.0, 1.0), low, high)
+        target = np.clip(episode['target'] + MAX_STEP * action[:3], low, high)
         try:
             episode['joints'] = arm.solve(tcp_pose(target), episode['joints'])
             episode['target'] = target
@@ -246,15 +294,94 @@ class PolicyNode(Node):
             pass  # as in the environment: the arm holds its target
         episode['step'] += 1
         episode['deadline'] = time.monotonic() + _STEP_TIMEOUT
+        closed = self._picks and bool(action[3] < 0.0)
+        episode['pending'] = 1 + (closed != episode['closed'])
+        if closed != episode['closed']:
+            episode['closed'] = closed
+            self._send_gripper(0.0 if closed else RG2_MAX_OPENING, episode)
         self._send([1.0 / CONTROL_RATE], episode['joints'][None]).add_done_callback(
             lambda future: self._on_step_goal(future, episode))
+
+    def _reach_observation(self, episode: dict, tcp: np.ndarray,
+                           velocity: np.ndarray) -> dict | None:
+        """Return Reach's observation, or None when the episode ended at this step."""
+        goal = self._ball_centre() + (0.0, 0.0, self._radius())
+        distance = float(np.linalg.norm(tcp - goal))
+        if distance < REACH_TOLERANCE:
+            self._end(episode, f'reached the ball: TCP {distance * 1000:.0f} mm from its top '
+                      f'after {episode["step"]} steps', reached=True)
+            return None
+        if episode['step'] >= EPISODE_STEPS[REACH_ID]:
+            self._end(episode, f'not reached after {episode["step"]} steps: TCP '
+                      f'{distance * 1000:.0f} mm from the ball top')
+            return None
+        return reach_observation(tcp, velocity, goal)
+
+    def _pick_observation(self, episode: dict, arm: ArmKinematics, tcp: np.ndarray,
+                          velocity: np.ndarray, opening: float | None) -> dict | None:
+        """Return Pick's observation, or None when the episode ended at this step."""
+        if opening is None:
+            raise ValueError('no RG2 finger joints in joint_states')
+        gripping = episode['closed'] and abs(opening - 2 * self._radius()) < _GRASP_TOLERANCE
+        if not gripping:
+            episode['held_at'] = None
+        if episode.get('held_at') is not None:
+            # Held, the ball moves with the TCP; the fingers hide much of it from the camera,
+            # whose estimate of what is left of it is worse than this.
+            ball = tcp + episode['held_at']
+        else:
+            try:
+                ball = self._ball_centre()
+            except ValueError:
+                if episode['ball'] is None:
+                    raise
+                ball = episode['ball']  # hidden by the arm: it lies where it was last seen
+            if gripping and np.linalg.norm(ball - tcp) < _HELD_DISTANCE:
+                episode['held_at'] = ball - tcp
+        previous = episode['ball']
+        ball_velocity = np.zeros(3) if previous is None else (ball - previous) * CONTROL_RATE
+        episode['ball'] = ball
+        held = episode.get('held_at') is not None
+        height = float(ball[2] - self._radius() - arm.floor_z)  # its bottom above the floor
+        lifted = held and height >= LIFT_SUCCESS
+        at_goal = np.linalg.norm(ball - episode['goal']) < PICK_GOAL_TOLERANCE
+        if (lifted and at_goal) or episode['step'] >= EPISODE_STEPS[PICK_ID]:
+            state = (f'held {height * 100:.1f} cm above the floor' if held else
+                     f'not held, {height * 100:.1f} cm above the floor, gripper '
+                     f'{opening * 1000:.0f} mm')
+            self._end(episode, f"{'picked' if lifted else 'missed'} the ball: {state} after "
+                      f'{episode["step"]} steps', reached=lifted)
+            return None
+        return pick_observation(tcp, velocity, opening, ball, ball_velocity, episode['goal'])
 
     def _on_step_goal(self, future, episode: dict) -> None:
         handle = future.result()
         if not handle.accepted:  # refused (too fast for a joint): the arm holds, go on
-            self._step(episode)
+            self._step_done(episode)
             return
-        handle.get_result_async().add_done_callback(lambda _: self._step(episode))
+        handle.get_result_async().add_done_callback(lambda _: self._step_done(episode))
+
+    def _send_gripper(self, position: float, episode: dict) -> None:
+        goal = GripperCommand.Goal()
+        goal.command.position = position
+        goal.command.max_effort = RG2_MAX_FORCE
+        self._gripper.send_goal_async(goal).add_done_callback(
+            lambda future: self._on_gripper_goal(future, episode))
+
+    def _on_gripper_goal(self, future, episode: dict) -> None:
+        handle = future.result()
+        if not handle.accepted:
+            self._end(episode, f'{GRIPPER_ACTION} refused the goal')
+            return
+        handle.get_result_async().add_done_callback(lambda _: self._step_done(episode))
+
+    def _step_done(self, episode: dict) -> None:
+        """Count one finished goal of the step; the last of them starts the next step."""
+        with self._lock:
+            episode['pending'] -= 1
+            last = episode['pending'] == 0
+        if last:
+            self._step(episode)
 
     def _watch(self) -> None:
         with self._lock:
@@ -272,8 +399,11 @@ class PolicyNode(Node):
             self._episode = None
         self._driving.publish(Bool(data=False))
         seconds = time.monotonic() - episode['started']
-        log = self.get_logger().info if reached else self.get_logger().warning
-        log(f'policy episode: {outcome} ({seconds:.1f} s)')
+        # rclpy refuses two severities from one call site: one call each.
+        if reached:
+            self.get_logger().info(f'policy episode: {outcome} ({seconds:.1f} s)')
+        else:
+            self.get_logger().warning(f'policy episode: {outcome} ({seconds:.1f} s)')
 
 
 def main(args: list[str] | None = None) -> int:

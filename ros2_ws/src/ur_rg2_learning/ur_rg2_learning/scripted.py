@@ -15,15 +15,13 @@ from ur_rg2_learning.envs import MAX_STEP
 
 # The TCP this far above the ball's centre grasps it low between the pads, as the motion
 # node's pick does; the approach comes down from APPROACH_HEIGHT once over the ball.
-GRASP_HEIGHT = 0.01  # m
+GRASP_HEIGHT = 0.003  # m
 APPROACH_HEIGHT = 0.08  # m
 OVER = 0.005  # m: horizontally this near the ball the TCP is over it
 AT_GRASP = 0.005  # m: vertically this near the grasp height it closes
-# With the ball at the TCP, fingers closer than this hold it: the 6 cm ball stops them at
-# 58 mm, and lifting before they have (at 60 mm, say) lets it slip out. Further apart they
-# are still closing on it.
-HOLDING_OPENING = 0.0595  # m
-CLOSING_OPENING = 0.105  # m
+# With the ball at the TCP, closed fingers between these openings hold it (the 6 cm ball
+# stops them at 58 mm; a step that closes the RG2 ends when its fingers stop).
+HOLDING_OPENING = (0.002, 0.07)  # m
 HELD_DISTANCE = 0.03  # m, ball centre to TCP
 
 
@@ -34,10 +32,8 @@ def pick_action(observation: Mapping[str, np.ndarray], rng: np.random.Generator 
     tcp, opening, ball = o[0:3], o[6], o[7:10]
     goal = np.asarray(observation['desired_goal'], dtype=np.float64)
     at_tcp = np.linalg.norm(ball - tcp) < HELD_DISTANCE
-    if at_tcp and opening < HOLDING_OPENING:
+    if at_tcp and HOLDING_OPENING[0] < opening < HOLDING_OPENING[1]:
         move, grip = goal - tcp, -1.0  # held: to the goal above
-    elif at_tcp and opening < CLOSING_OPENING:
-        move, grip = np.zeros(3), -1.0  # closing on it: wait
     else:
         grasp = ball + (0.0, 0.0, GRASP_HEIGHT)
         over = np.linalg.norm(grasp[:2] - tcp[:2]) < OVER

@@ -29,6 +29,7 @@ from ur_rg2_common.contract import (
     ARM_JOINTS,
     GRIPPER_ACTION,
     LATCHED_QOS,
+    RG2_MAX_OPENING,
     TF_QOS,
     TRAJECTORY_ACTION,
     WORLD_FRAME,
@@ -60,7 +61,6 @@ from ur_rg2_motion.planning import (
 )
 
 NODE_NAME = 'ur_rg2_motion'
-RG2_MAX_OPENING = 0.110  # m, the gripper_cmd range
 RG2_MAX_EFFORT = 40.0  # N
 # A quaternion this close to unit length is a client's rounding: normalised without a word.
 QUATERNION_NORM_TOLERANCE = 1e-3

@@ -233,8 +233,11 @@ class Controllers:
     def _log_end(self, action: str, ended: Ended) -> None:
         if self._closed:
             return  # shutting down: rosout may be gone, and the exit says so anyway
-        log = self._logger.info if ended.status != 'aborted' else self._logger.warning
-        log(f'{action} goal {ended.status}: {ended.message}')
+        # rclpy refuses two severities from one call site (ValueError): one call each.
+        if ended.status == 'aborted':
+            self._logger.warning(f'{action} goal {ended.status}: {ended.message}')
+        else:
+            self._logger.info(f'{action} goal {ended.status}: {ended.message}')
 
 
 def _trajectory_goal(request: FollowJointTrajectory.Goal):

@@ -21,16 +21,14 @@ from pathlib import Path
 import xml.etree.ElementTree as ET
 
 import numpy as np
+from ur_rg2_common.contract import RG2_MAX_FORCE, RG2_MAX_OPENING
 
-GRIPPER_JOINTS = ('rg2_left_finger_joint', 'rg2_right_finger_joint')
 ROBOT_MODELS = ('ur5', 'ur3')
 
 FLANGE_LINK = 'tool0'
 TCP_LINK = 'rg2_tcp'
 
 # RG2 datasheet values.
-RG2_MAX_OPENING = 0.110  # m, between the finger pads
-RG2_MAX_FORCE = 40.0  # N
 RG2_MIN_FORCE = 3.0  # N
 RG2_MAX_FINGER_SPEED = 0.127 / 2  # m/s per finger (datasheet closing speed 38-127 mm/s)
 RG2_MASS = 0.78  # kg

@@ -13,14 +13,11 @@ import tempfile
 from typing import Optional
 
 import pybullet
-from ur_rg2_common.contract import ARM_JOINTS
+from ur_rg2_common.contract import ARM_JOINTS, GRIPPER_JOINTS, RG2_MAX_FORCE, RG2_MAX_OPENING
 from ur_rg2_common.scene_objects import SceneObject
 
 from ur_rg2_sim.robot_model import (
-    GRIPPER_JOINTS,
     RG2_MAX_FINGER_SPEED,
-    RG2_MAX_FORCE,
-    RG2_MAX_OPENING,
     RG2_MIN_FORCE,
     TCP_LINK,
     JointLimit,

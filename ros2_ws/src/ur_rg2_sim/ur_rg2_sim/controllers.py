@@ -24,7 +24,14 @@ from ur_rg2_sim.contract import GRIPPER_ACTION, TRAJECTORY_ACTION
 from ur_rg2_sim.drivers import ArmDriver, ArmRun, Ended, GripperDriver, GripperRun
 from ur_rg2_sim.robot_model import ARM_JOINTS
 from ur_rg2_sim.simulation import NS, SimulationLoop
-from ur_rg2_sim.trajectory import INVALID_GOAL, INVALID_JOINTS, Point, Tolerance, TrajectoryError
+from ur_rg2_sim.trajectory import (
+    INVALID_GOAL,
+    INVALID_JOINTS,
+    PATH_TOLERANCE_VIOLATED,
+    Point,
+    Tolerance,
+    TrajectoryError,
+)
 from ur_rg2_sim.trajectory import validate as validate_trajectory
 from ur_rg2_sim.world import SimWorld
 
@@ -100,6 +107,10 @@ class Controllers:
     def arm_commanded(self, source: str) -> None:
         """Preempt a running trajectory: ``source`` commands the arm (simulation thread)."""
         self._arm.preempt(f'preempted by {source}')
+
+    def arm_blocked(self, reason: str) -> None:
+        """Abort a running trajectory whose path is blocked (simulation thread)."""
+        self._arm.preempt(reason, PATH_TOLERANCE_VIOLATED)
 
     def close(self) -> None:
         """End running goals and stop taking new ones; call after the simulation stopped."""

@@ -1,0 +1,68 @@
+"""The protective stop: the arm stops where it touches the floor, the pedestal or itself.
+
+Plain Python, no ROS; runs on the simulation thread before every physics step, after the
+controllers have set the joints' targets.
+
+Why the arm used to wedge: the position motors push with their full torque (150 N·m at the
+UR5's shoulder and elbow) for as long as the target lies beyond an obstacle, so a link driven
+into the floor ends up pressed on it with 200-800 N. Friction on that contact is then more
+than the other joints' motors can overcome, and the RG2's 40 N finger motors, pressed on
+the floor, neither move nor settle. A reset does not help: the joints move independently,
+and the shortest move (the shoulder, back down) presses the link in again before the others
+have pulled it clear.
+
+So the arm is stopped at the touch, before the load builds up: whenever a link presses on an
+obstacle and the joints' targets would take it further in, every joint is held where it is
+(its target becomes its position). A target that moves the link away or along the obstacle
+is never held back, so every command that moves away is obeyed.
+"""
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Optional
+
+from ur_rg2_sim.simulation import NS
+from ur_rg2_sim.world import Contact, SimWorld
+
+# A stop on the same link and obstacle within this long of the last is not warned about again
+# (s of simulation time).
+REWARN_AFTER = 2.0
+# On a stop the arm goes back this far (rad, the joint that moved most) the way it came, so
+# that its motors stop pressing on the contact: about 4 mm at the UR5's wrist from the elbow.
+BACK_OFF = 0.01
+# The targets must take the contact point at least this far into the obstacle to count as
+# driving into it (m): below, a held arm's sag under its own weight would count.
+APPROACH_TOLERANCE = 1e-4
+
+
+@dataclass
+class ProtectiveStop:
+    """Holds the arm at a contact it is driven into; ``on_stop`` hears of each stop.
+
+    ``on_stop(contact, held, new)`` is called on every stop with the contact that caused it,
+    the joint positions held and whether it is new, worth a warning: not the same link on the
+    same obstacle as a stop less than ``REWARN_AFTER`` ago (a key held down against the floor
+    stops the arm at every repeat; the settling arm may stop again a few times).
+    """
+
+    on_stop: Callable[[Contact, dict[str, float], bool], None]
+    _last_stop_ns: dict[tuple[str, str], int] = field(default_factory=dict)
+
+    def step(self, world: SimWorld, now_ns: int) -> Optional[Contact]:
+        """Check the contacts of the last physics step; stop the arm if it is driven in."""
+        driven = [c for c in world.obstacle_contacts() if c.approach > APPROACH_TOLERANCE]
+        if not driven:
+            return None
+        stop = max(driven, key=lambda c: c.approach)
+        held = world.hold_arm(BACK_OFF)
+        pair = (stop.link, stop.obstacle)
+        last = self._last_stop_ns.get(pair)
+        self._last_stop_ns[pair] = now_ns
+        self.on_stop(stop, held, last is None or now_ns - last > REWARN_AFTER * NS)
+        return stop
+
+def describe(contact: Contact) -> str:
+    """Return what touched what, for a person: 'wrist_1_link touched the floor'."""
+    obstacle = (f'the {contact.obstacle}' if contact.obstacle in ('floor', 'pedestal')
+                else f'the arm itself ({contact.obstacle})')
+    return f'{contact.link} touched {obstacle}'

@@ -195,10 +195,10 @@ def test_absolute_command_clamping_and_reset(ros_graph):
     probe = Probe(ros_graph)
     probe.send(probe.command, ['shoulder_pan_joint', 'wrist_2_joint'], [0.5, -0.7])
     probe.wait_positions({'shoulder_pan_joint': 0.5, 'wrist_2_joint': -0.7})
-    # The UR elbow is limited to +-pi: a target beyond stops there. Folded up, over the upper
-    # arm: folded down, the forearm would stop on the floor first.
-    probe.send(probe.command, ['elbow_joint'], [-4.0])
-    probe.wait_positions({'elbow_joint': -math.pi})
+    # The UR wrists are limited to +-2 pi: a target beyond stops there. (The elbow's +-pi is
+    # out of reach: folded that far, the arm meets itself or the floor first.)
+    probe.send(probe.command, ['wrist_3_joint'], [10.0])
+    probe.wait_positions({'wrist_3_joint': 2 * math.pi})
     response = probe.call('reset')
     assert response.success, response.message
     probe.wait_positions(dict.fromkeys(ARM_JOINTS, 0.0))

@@ -109,8 +109,8 @@ class Controllers:
         self._arm.preempt(f'preempted by {source}')
 
     def arm_blocked(self, reason: str) -> None:
-        """Abort a running trajectory whose path is blocked (simulation thread)."""
-        self._arm.preempt(reason, PATH_TOLERANCE_VIOLATED)
+        """Abort a running trajectory whose path is blocked, the reason logged (sim thread)."""
+        self._arm.preempt(reason, PATH_TOLERANCE_VIOLATED, logged=True)
 
     def close(self) -> None:
         """End running goals and stop taking new ones; call after the simulation stopped."""
@@ -245,7 +245,8 @@ class Controllers:
     def _log_end(self, action: str, ended: Ended) -> None:
         if self._closed:
             return  # shutting down: rosout may be gone, and the exit says so anyway
-        log = self._logger.info if ended.status != 'aborted' else self._logger.warning
+        log = (self._logger.warning if ended.status == 'aborted' and not ended.logged
+               else self._logger.info)
         log(f'{action} goal {ended.status}: {ended.message}')
 
 

@@ -59,17 +59,17 @@ _CONTACT_STIFFNESS = 3e4
 _CONTACT_DAMPING = 1e2
 
 # Self-collision is on only between links that can really meet: the forearm's far end (the
-# wrist) folded onto the upper arm or the shoulder, the wrist and gripper onto the base, and
-# the gripper folded back onto the forearm. Neighbouring links' meshes (convex hulls in
-# pybullet) overlap at their joint in every pose, and the forearm's hull comes within 13 mm
-# of wrist_2 at home: enabling those pairs would lock the joints.
+# wrist) and the gripper folded onto the upper arm or the shoulder, the forearm, wrist and
+# gripper onto the base. Neighbouring links' meshes (convex hulls in pybullet) overlap at
+# their joint in every pose. The forearm's hull is much fatter than the forearm (it spans
+# both joint housings): it comes within 13 mm of wrist_2 at home and met the open fingers in
+# ordinary tool moves, so the gripper folded back onto the forearm is left out.
 _WRIST_AND_GRIPPER = ('wrist_1_link', 'wrist_2_link', 'wrist_3_link', 'rg2_body',
                       'rg2_left_finger', 'rg2_right_finger')
 SELF_COLLISION_PAIRS = tuple(
     [('upper_arm_link', link) for link in _WRIST_AND_GRIPPER]
     + [('shoulder_link', link) for link in ('forearm_link', *_WRIST_AND_GRIPPER)]
-    + [('base_link', link) for link in ('forearm_link', *_WRIST_AND_GRIPPER)]
-    + [('forearm_link', link) for link in _WRIST_AND_GRIPPER[2:]])
+    + [('base_link', link) for link in ('forearm_link', *_WRIST_AND_GRIPPER)])
 
 # A position motor holding its joint keeps it this close to the target (rad), also against a
 # contact; a joint further off is on its way somewhere (or pressed back from there).
@@ -108,6 +108,7 @@ class Contact:
     obstacle: str  # 'floor', 'pedestal' or the other link's name
     force: float  # N, along the normal
     approach: float  # m the joints' targets would take the link into the obstacle (<0: away)
+    incidence: float  # sine of the angle of that motion into the surface: 1 head-on, 0 along
 
 
 @dataclass(frozen=True)
@@ -366,16 +367,20 @@ class SimWorld:
             [s[0] for s in states], [s[1] for s in states], [s[3] for s in states])
 
     def obstacle_contacts(self) -> list[Contact]:
-        """Return where the robot presses on the floor, the pedestal or itself (last step).
+        """Return the links pressing on the floor, the pedestal or the arm (last step).
 
-        ``approach`` is how far the contact point would move into the obstacle if every arm
-        joint went from where it is to its target (the Jacobian at the contact times the
-        joints' remaining travel): positive while a command drives the link into it. A joint
-        within ``_HOLDING_ERROR`` of its target counts as holding, not moving.
+        One Contact per link and obstacle: ``force`` is the sum over its contact points,
+        ``approach`` how far the most loaded point would move into the obstacle if every arm
+        joint went from where it is to its target (the Jacobian there times the joints'
+        remaining travel): positive while a command drives the link into it; ``incidence``
+        the sine of the angle between that motion and the obstacle's surface. A joint within
+        ``_HOLDING_ERROR`` of its target counts as holding, not moving.
         """
-        contacts = [c for c in self._p.getContactPoints(self.robot)
-                    if c[9] > 0.0 and (c[2] == self.robot or c[2] in self._obstacle_name)]
-        if not contacts:
+        pairs: dict[tuple[int, int, int], list] = {}
+        for c in self._p.getContactPoints(self.robot):
+            if c[9] > 0.0 and (c[2] == self.robot or c[2] in self._obstacle_name):
+                pairs.setdefault((c[2], c[3], c[4]), []).append(c)
+        if not pairs:
             return []
         states = self._p.getJointStates(self.robot, self._movable)
         positions = [s[0] for s in states]
@@ -384,21 +389,27 @@ class SimWorld:
             remaining = self.arm_targets[name] - states[self._movable.index(index)][0]
             travel[index] = remaining if abs(remaining) > _HOLDING_ERROR else 0.0
         travel = [travel[i] for i in self._movable]
+        moving = any(travel)
         zeros = [0.0] * len(self._movable)
         found = []
-        for c in contacts:
-            normal = c[7]  # from the obstacle (B) toward the robot link (A)
-            motion = self._point_motion(c[3], c[5], positions, travel, zeros)
-            if c[2] == self.robot:
-                other = self._point_motion(c[4], c[6], positions, travel, zeros)
-                motion = [m - o for m, o in zip(motion, other)]
+        for (body, link_a, link_b), points in pairs.items():
+            c = max(points, key=lambda point: point[9])
+            approach = incidence = 0.0
+            if moving:
+                motion = self._point_motion(link_a, c[5], positions, travel, zeros)
+                if body == self.robot:
+                    other = self._point_motion(link_b, c[6], positions, travel, zeros)
+                    motion = [m - o for m, o in zip(motion, other)]
+                # The normal points from the obstacle (B) toward the robot link (A).
+                approach = -sum(m * n for m, n in zip(motion, c[7]))
+                incidence = approach / max(math.sqrt(sum(m * m for m in motion)), 1e-12)
             # Of two links, the one further down the chain (the wrist, not the upper arm) is
             # the one that touched; the approach is the same either way round.
-            link, other_link = (c[3], c[4]) if c[2] != self.robot or c[3] > c[4] else (c[4], c[3])
-            found.append(Contact(
-                self._link_name[link],
-                self._obstacle_name.get(c[2]) or self._link_name[other_link], c[9],
-                -sum(m * n for m, n in zip(motion, normal))))
+            link, other_link = ((link_a, link_b) if body != self.robot or link_a > link_b
+                                else (link_b, link_a))
+            found.append(Contact(self._link_name[link],
+                                 self._obstacle_name.get(body) or self._link_name[other_link],
+                                 sum(point[9] for point in points), approach, incidence))
         return found
 
     def _point_motion(self, link: int, point, positions, travel, zeros) -> list[float]:

@@ -11,6 +11,7 @@ import threading
 import time
 
 from conftest import GRIPPER_DOWN, start_sim, wait_for
+from geometry_msgs.msg import PoseStamped
 import numpy as np
 import pytest
 from rcl_interfaces.msg import Log
@@ -271,10 +272,16 @@ def test_camera_images_and_camera_info(ros_graph):
 def test_ball_position_parameter_moves_the_ball(ros_graph):
     start_sim(ros_graph, camera_width=320, camera_height=240)
     probe = Probe(ros_graph)
+    truth = []
+    probe.node.create_subscription(PoseStamped, 'ball/true_pose', truth.append, 100)
     target = [0.2, -0.5, 0.03]
     assert probe.set_parameters(ball_position=target)[0].successful
-    changed_at = stamp_ns(probe.latest('joint_states'))
-    assert_ball_seen_at(probe, target, after_ns=changed_at)
+    # The move is applied between two physics steps after the answer: frames are judged from
+    # the first ground truth that has the ball there.
+    moved = wait_for(lambda: next((m for m in list(truth) if abs(m.pose.position.x - 0.2) < 1e-3
+                                   and abs(m.pose.position.y + 0.5) < 1e-3), None), 20,
+                     'the ball at its new position')
+    assert_ball_seen_at(probe, target, after_ns=stamp_ns(moved))
     for bad, reason in (([0.1, math.nan, 0.03], 'finite'), ([0.1, 0.2], 'needs 3 numbers')):
         result = probe.set_parameters(ball_position=bad)[0]
         assert not result.successful and reason in result.reason

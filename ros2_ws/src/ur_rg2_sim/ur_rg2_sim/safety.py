@@ -22,6 +22,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Optional
 
+from ur_rg2_sim.robot_model import ARM_JOINTS
 from ur_rg2_sim.simulation import NS
 from ur_rg2_sim.world import Contact, SimWorld
 
@@ -30,6 +31,10 @@ from ur_rg2_sim.world import Contact, SimWorld
 # the floor scrapes the fingers over it (at about 16 degrees) and goes on home. Every wedge
 # of issue 21 came in at 40 degrees or more.
 MIN_INCIDENCE = 0.5
+# Sent along an obstacle but stuck on it (no arm joint faster than this, rad/s) for this long
+# (s of simulation time): blocked all the same.
+BLOCKED_SPEED = 0.05
+BLOCKED_TIME = 0.25
 # A stop on the same link and obstacle within this long of the last is not warned about again
 # (s of simulation time).
 REWARN_AFTER = 2.0
@@ -54,13 +59,26 @@ class ProtectiveStop:
 
     on_stop: Callable[[Contact, dict[str, float], bool], None]
     _last_stop_ns: dict[tuple[str, str], int] = field(default_factory=dict)
+    _blocked_since_ns: Optional[int] = None
 
     def step(self, world: SimWorld, now_ns: int) -> Optional[Contact]:
         """Check the contacts of the last physics step; stop the arm if it is driven in."""
-        driven = [c for c in world.obstacle_contacts()
-                  if c.approach > APPROACH_TOLERANCE and c.incidence > MIN_INCIDENCE]
+        pressed = [c for c in world.obstacle_contacts() if c.approach > APPROACH_TOLERANCE]
+        driven = [c for c in pressed if c.incidence > MIN_INCIDENCE]
+        if pressed and not driven:
+            # Sent along the obstacle: fine while it slides, a stop once it is stuck there.
+            if max(abs(v) for v in world.joint_states().velocities[:len(ARM_JOINTS)]) > \
+                    BLOCKED_SPEED:
+                self._blocked_since_ns = None
+            elif self._blocked_since_ns is None:
+                self._blocked_since_ns = now_ns
+            elif now_ns - self._blocked_since_ns >= BLOCKED_TIME * NS:
+                driven = pressed
         if not driven:
+            if not pressed:
+                self._blocked_since_ns = None
             return None
+        self._blocked_since_ns = None
         stop = max(driven, key=lambda c: c.approach)
         held = world.hold_arm(BACK_OFF)
         pair = (stop.link, stop.obstacle)

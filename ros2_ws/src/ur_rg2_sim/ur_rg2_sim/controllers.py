@@ -245,9 +245,12 @@ class Controllers:
     def _log_end(self, action: str, ended: Ended) -> None:
         if self._closed:
             return  # shutting down: rosout may be gone, and the exit says so anyway
-        log = (self._logger.warning if ended.status == 'aborted' and not ended.logged
-               else self._logger.info)
-        log(f'{action} goal {ended.status}: {ended.message}')
+        # One call site per severity: rclpy refuses a call site whose severity changes.
+        message = f'{action} goal {ended.status}: {ended.message}'
+        if ended.status == 'aborted' and not ended.logged:
+            self._logger.warning(message)
+        else:
+            self._logger.info(message)
 
 
 def _trajectory_goal(request: FollowJointTrajectory.Goal):

@@ -15,7 +15,9 @@ So the arm is stopped at the touch, before the load builds up: whenever a link p
 obstacle and the joints' targets would take it further in, steeply, the arm goes back a
 little the way it came and holds there (the targets become those positions). A target that
 moves the link away from the obstacle or along it is never held back, so every command that
-moves away is obeyed.
+moves away is obeyed. With it go two fixes in the world (ur_rg2_sim.world): joint commands
+and reset move the joints together (``SimWorld.move_arm``), and a finger at its target counts
+as stopped, however the solver jitters its speed (``SimWorld.gripper_stopped``).
 """
 
 from collections.abc import Callable

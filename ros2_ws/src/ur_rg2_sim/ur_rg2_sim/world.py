@@ -81,6 +81,9 @@ _MIN_SPEED_SHARE = 0.05
 
 # A finger that moves slower than this is stopped (m/s).
 _FINGER_STOPPED_SPEED = 1e-3
+# A finger resting on the floor or the pedestal slower than this has stopped (m/s): the
+# solver jitters its speed by a few mm/s there.
+_FINGER_PRESSED_JITTER = 0.01
 # A finger this close to its target has reached it (m).
 _FINGER_AT_TARGET = 5e-4
 # Fingers stopped this far short of closed hold something (m of opening).
@@ -336,14 +339,22 @@ class SimWorld:
 
         A finger at its target counts whatever its speed: closed with the gripper on its side
         or upside down (the arm folded), the fingers rest on the end of their travel and the
-        solver reports a speed of several mm/s that never settles, without any motion.
+        solver reports a speed of several mm/s that never settles, without any motion. So
+        does a finger pressed on the floor or the pedestal, below ``_FINGER_PRESSED_JITTER``.
         """
         for name in GRIPPER_JOINTS:
             position, speed = self._p.getJointState(self.robot, self._joint_index[name])[:2]
             if (abs(speed) >= _FINGER_STOPPED_SPEED
-                    and abs(position - self.gripper_target / 2) > _FINGER_AT_TARGET):
+                    and abs(position - self.gripper_target / 2) > _FINGER_AT_TARGET
+                    and not (abs(speed) < _FINGER_PRESSED_JITTER and self._on_obstacle(name))):
                 return False
         return True
+
+    def _on_obstacle(self, joint: str) -> bool:
+        """Return whether the finger of ``joint`` rests on the floor or the pedestal."""
+        link = self._link_index[joint.replace('_joint', '')]
+        return any(c[2] in self._obstacle_name
+                   for c in self._p.getContactPoints(self.robot, linkIndexA=link))
 
     def gripper_holds_object(self) -> bool:
         """Return whether the closed fingers are held apart by something between them."""

@@ -6,10 +6,7 @@ transform buffer the node uses.
 """
 
 import math
-import os
 import re
-import subprocess
-import sys
 import threading
 import time
 
@@ -400,33 +397,3 @@ def test_a_pick_blocked_on_its_way_reports_the_protective_stop(unguarded):
     assert 'touched the arm itself' in answer.message
     unguarded.wait_still()
 
-
-def test_vision_killed_during_a_pick_fails_it_with_the_reason_and_the_arm_holds(ros_graph):
-    rig = Rig(ros_graph, camera_rate=15.0, real_time_factor=1.0)
-    # A short memory for the ball: it is gone well before the arm is over it.
-    rig.motion.set_parameters([Parameter('ball_timeout', value=0.3)])
-    seen: list = []
-    rig.node.create_subscription(PointStamped, 'ball/position', seen.append, 10)
-    vision = subprocess.Popen([os.path.join(os.path.dirname(sys.executable), 'vision')],
-                              env=ros_graph.env, stdout=subprocess.DEVNULL,
-                              stderr=subprocess.DEVNULL)
-    try:
-        wait_for(lambda: len(seen) > 3, TIMEOUT, 'vision to see the ball')
-        wait_for(rig.pick_client.service_is_ready, TIMEOUT, 'the pick_ball service')
-        pick = rig.pick_client.call_async(Trigger.Request())
-        wait_for(lambda: rig.motion._pick_running, TIMEOUT, 'the pick to start')
-        vision.kill()
-        wait_for(pick.done, 120, 'the pick to end')
-    finally:
-        if vision.poll() is None:
-            vision.kill()
-        vision.wait()
-    answer = pick.result()
-    assert not answer.success
-    assert 'lost sight of the ball before descending: no ball seen' in answer.message, \
-        answer.message
-    held = rig.wait_still()
-    tcp = rig.tcp()
-    assert tcp[2, 3] > 0.03 - 0.2 + 0.05, 'the arm went down without seeing the ball'
-    time.sleep(0.5)
-    assert np.abs(rig.joints() - held).max() < 1e-3

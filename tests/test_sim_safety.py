@@ -57,8 +57,12 @@ class Rig:
     def gripper_answers(self, target: float, free: bool = True) -> None:
         """Drive the fingers to ``target``; check they settle (there, if ``free``)."""
         self.world.command_gripper(target)
-        self.run(3.0)
-        assert self.world.gripper_stopped()
+        # Asked every step, as the gripper services and action do: stopped for the last 0.1 s.
+        stopped = []
+        for _ in range(round(3.0 / self.world.dt)):
+            self.run(self.world.dt)
+            stopped.append(self.world.gripper_stopped())
+        assert all(stopped[-round(0.1 / self.world.dt):])
         if free:
             assert self.world.gripper_opening() == pytest.approx(target, abs=2e-3)
 

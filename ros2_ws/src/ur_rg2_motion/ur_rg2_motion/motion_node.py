@@ -76,8 +76,6 @@ _MIN_MOVE_DURATION = 0.2  # s
 _REST_SPEED = 0.02
 _REST_TIMEOUT = 10.0  # s
 _STAYED_TOLERANCE = 0.02  # rad: the arm held at the ball sags less than this as it grips
-# Seen again from above, the ball may be this far from where the pick was planned (m).
-_BALL_MOVED = 0.02
 # The pick's straight moves must not take more than this share of the joint speed limits.
 _PICK_SPEED_SCALE = 0.7
 
@@ -375,7 +373,6 @@ class MotionNode(Node):
         self._run_trajectory(plan_joint_move(joints, plan.joints_above, self._velocity_limits,
                                              scale, _MIN_MOVE_DURATION), 'moving above the ball')
         self._finish_gripper(opening, 'opening the gripper')
-        self._confirm_ball(ball)
         self._straight(arm, plan.grasp, approach, min(scale, _PICK_SPEED_SCALE),
                        'descending to the ball')
         at_ball = self._current_joints()
@@ -395,20 +392,6 @@ class MotionNode(Node):
             raise PickError(f'dropped: the gripper is at {1000 * (held or 0):.1f} mm after the '
                              f'lift, {1000 * result.position:.1f} mm when it closed')
         return held
-
-    def _confirm_ball(self, planned: np.ndarray) -> None:
-        """Check, over the ball, that vision still sees it where the pick was planned.
-
-        Descending blind would grasp at a ball that has gone (or a vision node that has
-        died); the arm holds above it instead.
-        """
-        try:
-            seen = self._ball_in_base_link()
-        except PickError as error:
-            raise PickError(f'lost sight of the ball before descending: {error}') from None
-        moved = float(np.linalg.norm(seen - planned))
-        if moved > _BALL_MOVED:
-            raise PickError(f'the ball moved {moved * 1000:.0f} mm while the arm came over it')
 
     def _wait_for_rest(self) -> None:
         """Wait for the arm to stop (a reset or jog under way): moves are planned from rest."""

@@ -81,11 +81,9 @@ _MIN_SPEED_SHARE = 0.05
 
 # A finger that moves slower than this is stopped (m/s).
 _FINGER_STOPPED_SPEED = 1e-3
-# A finger resting on the floor or the pedestal slower than this has stopped (m/s): the
-# solver jitters its speed by a few mm/s there.
-_FINGER_PRESSED_JITTER = 0.01
-# A finger this close to its target has reached it (m).
-_FINGER_AT_TARGET = 5e-4
+# The fingers' speed is measured over this long (s): the solver's jitter of a finger resting
+# at the end of its travel averages out.
+_FINGER_SPEED_WINDOW = 0.05
 # Fingers stopped this far short of closed hold something (m of opening).
 _GRASP_MIN_OPENING = 0.002
 
@@ -161,6 +159,10 @@ class SimWorld:
                          if self._p.getJointInfo(self.robot, i)[2] != pybullet.JOINT_FIXED]
         self._obstacle_name = {self.floor: 'floor', self.pedestal: 'pedestal'}
         self._configure_contacts()
+        self._steps = 0
+        # (step, finger positions) when gripper_stopped last looked, and what it found.
+        self._finger_probe: Optional[tuple[int, list[float]]] = None
+        self._finger_moving = True
         self.arm_targets = dict.fromkeys(ARM_JOINTS, 0.0)
         self.set_arm_positions(dict(zip(ARM_JOINTS, config.home_position)))
         self.reset_gripper()  # the RG2 starts fully open
@@ -317,6 +319,8 @@ class SimWorld:
         """
         self.gripper_target = min(max(opening, 0.0), RG2_MAX_OPENING)
         self.gripper_force = min(max(force, RG2_MIN_FORCE), RG2_MAX_FORCE)
+        self._finger_probe = None  # moving from now on, until seen stopped
+        self._finger_moving = True
         for name in GRIPPER_JOINTS:
             self._p.setJointMotorControl2(
                 self.robot, self._joint_index[name], pybullet.POSITION_CONTROL,
@@ -335,26 +339,26 @@ class SimWorld:
                    for name in GRIPPER_JOINTS) / len(GRIPPER_JOINTS)
 
     def gripper_stopped(self) -> bool:
-        """Return whether both fingers have stopped: at the target, or not moving (blocked).
+        """Return whether both fingers have stopped moving (at the target or blocked).
 
-        A finger at its target counts whatever its speed: closed with the gripper on its side
-        or upside down (the arm folded), the fingers rest on the end of their travel and the
-        solver reports a speed of several mm/s that never settles, without any motion. So
-        does a finger pressed on the floor or the pedestal, below ``_FINGER_PRESSED_JITTER``.
+        Judged by how far the fingers moved over the last ``_FINGER_SPEED_WINDOW`` (or more)
+        at which this was asked, not by the speed the solver reports: with the gripper on its
+        side or upside down (the arm folded), or a finger pressed on the floor, the fingers
+        rest at the end of their travel and the reported speed jitters by several mm/s
+        without any motion.
         """
-        for name in GRIPPER_JOINTS:
-            position, speed = self._p.getJointState(self.robot, self._joint_index[name])[:2]
-            if (abs(speed) >= _FINGER_STOPPED_SPEED
-                    and abs(position - self.gripper_target / 2) > _FINGER_AT_TARGET
-                    and not (abs(speed) < _FINGER_PRESSED_JITTER and self._on_obstacle(name))):
-                return False
-        return True
-
-    def _on_obstacle(self, joint: str) -> bool:
-        """Return whether the finger of ``joint`` rests on the floor or the pedestal."""
-        link = self._link_index[joint.replace('_joint', '')]
-        return any(c[2] in self._obstacle_name
-                   for c in self._p.getContactPoints(self.robot, linkIndexA=link))
+        positions = [self._p.getJointState(self.robot, self._joint_index[name])[0]
+                     for name in GRIPPER_JOINTS]
+        if self._finger_probe is None:
+            self._finger_probe = (self._steps, positions)
+            return False
+        steps, before = self._finger_probe
+        if (self._steps - steps) * self.dt >= _FINGER_SPEED_WINDOW:
+            elapsed = (self._steps - steps) * self.dt
+            self._finger_moving = any(abs(a - b) / elapsed >= _FINGER_STOPPED_SPEED
+                                      for a, b in zip(positions, before))
+            self._finger_probe = (self._steps, positions)
+        return not self._finger_moving
 
     def gripper_holds_object(self) -> bool:
         """Return whether the closed fingers are held apart by something between them."""
@@ -369,6 +373,7 @@ class SimWorld:
     def step(self) -> None:
         """Advance the simulation by one physics step."""
         self._p.stepSimulation()
+        self._steps += 1
 
     def joint_states(self) -> JointStateSample:
         """Return the current state of the arm and gripper joints."""

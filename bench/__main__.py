@@ -1,7 +1,7 @@
 """Run every benchmark and print one table: ``python -m bench [name ...]``.
 
 Names: sim, frames, controllers, teleop, vision, detector, viewer, dataset, motion, learning,
-setup, launch (default: all).
+setup, launch, soak (default: all; soak alone takes 10 minutes, SOAK_SECONDS sets its length).
 Each module's ``run()`` returns rows of (metric, measured, target). The numbers mean most on
 an otherwise idle machine.
 """
@@ -12,7 +12,7 @@ import sys
 import time
 
 BENCHMARKS = ('sim', 'frames', 'controllers', 'teleop', 'vision', 'detector', 'viewer',
-              'dataset', 'motion', 'learning', 'setup', 'launch')
+              'dataset', 'motion', 'learning', 'setup', 'launch', 'soak')
 
 
 def print_table(rows: list[tuple[str, str, str]]) -> None:

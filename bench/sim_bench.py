@@ -2,7 +2,8 @@
 
 The sim runs as its own process with its defaults (real-time factor 1, 640x480 camera at
 30 Hz); this process subscribes like any other node would. Then, headless at real-time factor
-0 with the camera off, it measures physics steps per second. Run alone: python -m bench.sim_bench
+0 with the camera off, it measures physics steps per second, and in this process the cost of
+the protective stop's contact check on them. Run alone: python -m bench.sim_bench
 """
 
 import re
@@ -140,9 +141,54 @@ def _headless_speed() -> list[tuple[str, str, str]]:
              '>= 20,000')]
 
 
+def _steps_per_second(world, stop, seconds: float) -> float:
+    steps, now_ns = 0, 0
+    start = time.perf_counter()
+    while time.perf_counter() - start < seconds:
+        for _ in range(240):
+            if stop is not None:
+                stop.step(world, now_ns)
+            world.step()
+            now_ns += world.dt * 1e9
+        steps += 240
+    return steps / (time.perf_counter() - start)
+
+
+def _contact_check_cost() -> list[tuple[str, str, str]]:
+    """Physics steps/s in this process with and without the protective stop's check.
+
+    Side by side in one world, alternating, so that the machine's drift hits both alike; the
+    arm free (no contact: one query per step), then resting on the floor (a contact each
+    step: its Jacobian too).
+    """
+    from ur_rg2_sim.safety import ProtectiveStop
+    from ur_rg2_sim.world import SimWorld, WorldConfig
+
+    world = SimWorld(WorldConfig())
+    stop = ProtectiveStop(lambda *_: None)
+    rates: dict[tuple[str, bool], list[float]] = {}
+    try:
+        for pose in ('free', 'on the floor'):
+            if pose == 'on the floor':
+                world.move_arm({'shoulder_lift_joint': 1.6})
+                _steps_per_second(world, stop, 2.0)  # down onto the floor, stopped there
+            for _ in range(3):
+                for checked in (False, True):
+                    rates.setdefault((pose, checked), []).append(
+                        _steps_per_second(world, stop if checked else None, 1.0))
+    finally:
+        world.close()
+    best = {key: max(values) for key, values in rates.items()}
+    return [(f'sim: physics steps/s in-process without / with the contact check ({pose})',
+             f'{best[(pose, False)]:,.0f} / {best[(pose, True)]:,.0f} '
+             f'({100 * (1 - best[(pose, True)] / best[(pose, False)]):.0f}% fewer)',
+             '<= 10% fewer' if pose == 'free' else '')
+            for pose in ('free', 'on the floor')]
+
+
 def run() -> list[tuple[str, str, str]]:
     """Measure the simulator; return (metric, measured, target) rows."""
-    return _real_time_run() + _render_times() + _headless_speed()
+    return _real_time_run() + _render_times() + _headless_speed() + _contact_check_cost()
 
 
 if __name__ == '__main__':

@@ -359,3 +359,41 @@ def ball_held(rig: Rig, truth: list, timeout: float = 5.0) -> bool:
         if time.monotonic() > deadline:
             return False
         time.sleep(0.05)
+
+
+@pytest.fixture
+def unguarded(ros_graph) -> Rig:
+    """Return the rig with a motion node told there is no pedestal and no floor clearance."""
+    rig = Rig(ros_graph)
+    rig.motion.set_parameters([Parameter('pedestal_half_width', value=0.0),
+                               Parameter('floor_clearance', value=0.0)])
+    return rig
+
+
+def test_a_tool_command_into_the_floor_reports_the_protective_stop(unguarded, capfd):
+    warnings = Warnings(capfd)
+    unguarded.send_pose(gripper_down((0.16, -0.02, -0.165), 0.0))
+    try:
+        report = wait_for(lambda: [w for w in warnings() if w.startswith('tool_command')],
+                          TIMEOUT, 'the tool_command to be reported')
+    except AssertionError:
+        raise AssertionError(f'no report; warnings {warnings()}, joints '
+                             f'{unguarded.joints()}') from None
+    assert 'the move ended early: protective stop: rg2_' in report[0], report
+    assert 'touched the floor' in report[0]
+    unguarded.wait_still()
+
+
+def test_a_pick_blocked_on_its_way_reports_the_protective_stop(unguarded):
+    # A ball beside the pedestal: the arm folds into itself on the way above it.
+    ball = PointStamped()
+    ball.header.frame_id = 'world'
+    ball.point.x, ball.point.y, ball.point.z = 0.15, -0.02, 0.03
+    unguarded.ball.publish(ball)
+    time.sleep(0.2)
+    answer = unguarded.pick()
+    assert not answer.success
+    assert 'the move ended early: protective stop:' in answer.message, answer.message
+    assert 'touched the arm itself' in answer.message
+    unguarded.wait_still()
+

@@ -11,6 +11,7 @@ import threading
 import time
 
 from conftest import GRIPPER_DOWN, start_sim, wait_for
+from geometry_msgs.msg import PoseStamped
 import numpy as np
 import pytest
 from rcl_interfaces.msg import Log
@@ -195,10 +196,10 @@ def test_absolute_command_clamping_and_reset(ros_graph):
     probe = Probe(ros_graph)
     probe.send(probe.command, ['shoulder_pan_joint', 'wrist_2_joint'], [0.5, -0.7])
     probe.wait_positions({'shoulder_pan_joint': 0.5, 'wrist_2_joint': -0.7})
-    # The UR elbow is limited to +-pi: a target beyond stops there. Folded up, over the upper
-    # arm: folded down, the forearm would stop on the floor first.
-    probe.send(probe.command, ['elbow_joint'], [-4.0])
-    probe.wait_positions({'elbow_joint': -math.pi})
+    # The UR wrists are limited to +-2 pi: a target beyond stops there. (The elbow's +-pi is
+    # out of reach: folded that far, the arm meets itself or the floor first.)
+    probe.send(probe.command, ['wrist_3_joint'], [10.0])
+    probe.wait_positions({'wrist_3_joint': 2 * math.pi})
     response = probe.call('reset')
     assert response.success, response.message
     probe.wait_positions(dict.fromkeys(ARM_JOINTS, 0.0))
@@ -271,10 +272,16 @@ def test_camera_images_and_camera_info(ros_graph):
 def test_ball_position_parameter_moves_the_ball(ros_graph):
     start_sim(ros_graph, camera_width=320, camera_height=240)
     probe = Probe(ros_graph)
+    truth = []
+    probe.node.create_subscription(PoseStamped, 'ball/true_pose', truth.append, 100)
     target = [0.2, -0.5, 0.03]
     assert probe.set_parameters(ball_position=target)[0].successful
-    changed_at = stamp_ns(probe.latest('joint_states'))
-    assert_ball_seen_at(probe, target, after_ns=changed_at)
+    # The move is applied between two physics steps after the answer: frames are judged from
+    # the first ground truth that has the ball there.
+    moved = wait_for(lambda: next((m for m in list(truth) if abs(m.pose.position.x - 0.2) < 1e-3
+                                   and abs(m.pose.position.y + 0.5) < 1e-3), None), 20,
+                     'the ball at its new position')
+    assert_ball_seen_at(probe, target, after_ns=stamp_ns(moved))
     for bad, reason in (([0.1, math.nan, 0.03], 'finite'), ([0.1, 0.2], 'needs 3 numbers')):
         result = probe.set_parameters(ball_position=bad)[0]
         assert not result.successful and reason in result.reason

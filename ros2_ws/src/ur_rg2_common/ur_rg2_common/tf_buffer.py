@@ -70,13 +70,42 @@ class TransformBuffer:
         with self._lock:
             self._edges[child] = (parent, transform)
 
-    def add_message(self, message) -> None:
-        """Store every transform of a tf2_msgs/TFMessage (or anything with its fields)."""
+    def add_message(self, message) -> int:
+        """Store every well-formed transform of a tf2_msgs/TFMessage; return how many not.
+
+        A transform without both frame ids, from a frame to itself, with a value that is not
+        finite or a rotation that is not a unit quaternion, or that would close a loop in the
+        tree, is left out: one would break every lookup through its frames until replaced,
+        and a frame nobody publishes again (``world``) never is.
+        """
+        rejected = 0
         for stamped in message.transforms:
             t, r = stamped.transform.translation, stamped.transform.rotation
-            self.set_transform(stamped.header.frame_id.lstrip('/'),
-                               stamped.child_frame_id.lstrip('/'),
-                               pose_matrix((t.x, t.y, t.z), (r.x, r.y, r.z, r.w)))
+            parent = stamped.header.frame_id.lstrip('/')
+            child = stamped.child_frame_id.lstrip('/')
+            values = (t.x, t.y, t.z, r.x, r.y, r.z, r.w)
+            if (not parent or not child or parent == child
+                    or not all(math.isfinite(v) for v in values)
+                    or abs(math.sqrt(r.x * r.x + r.y * r.y + r.z * r.z + r.w * r.w) - 1.0)
+                    > 1e-3 or self._above(child, parent)):
+                rejected += 1
+                continue
+            self.set_transform(parent, child, pose_matrix((t.x, t.y, t.z),
+                                                          (r.x, r.y, r.z, r.w)))
+        return rejected
+
+    def _above(self, frame: str, below: str) -> bool:
+        """Return whether ``frame`` is ``below`` or one of its ancestors."""
+        with self._lock:
+            seen = set()
+            while below not in seen:
+                if below == frame:
+                    return True
+                seen.add(below)
+                if below not in self._edges:
+                    return False
+                below = self._edges[below][0]
+            return False
 
     def frames(self) -> set[str]:
         """Return every frame heard of, parents and children."""

@@ -23,7 +23,14 @@ from ur_rg2_common.contract import ARM_JOINTS, GRIPPER_ACTION, TRAJECTORY_ACTION
 
 from ur_rg2_sim.drivers import ArmDriver, ArmRun, Ended, GripperDriver, GripperRun
 from ur_rg2_sim.simulation import NS, SimulationLoop
-from ur_rg2_sim.trajectory import INVALID_GOAL, INVALID_JOINTS, Point, Tolerance, TrajectoryError
+from ur_rg2_sim.trajectory import (
+    INVALID_GOAL,
+    INVALID_JOINTS,
+    PATH_TOLERANCE_VIOLATED,
+    Point,
+    Tolerance,
+    TrajectoryError,
+)
 from ur_rg2_sim.trajectory import validate as validate_trajectory
 from ur_rg2_sim.world import SimWorld
 
@@ -99,6 +106,10 @@ class Controllers:
     def arm_commanded(self, source: str) -> None:
         """Preempt a running trajectory: ``source`` commands the arm (simulation thread)."""
         self._arm.preempt(f'preempted by {source}')
+
+    def arm_blocked(self, reason: str) -> None:
+        """Abort a running trajectory whose path is blocked, the reason logged (sim thread)."""
+        self._arm.preempt(reason, PATH_TOLERANCE_VIOLATED, logged=True)
 
     def close(self) -> None:
         """End running goals and stop taking new ones; call after the simulation stopped."""
@@ -233,11 +244,12 @@ class Controllers:
     def _log_end(self, action: str, ended: Ended) -> None:
         if self._closed:
             return  # shutting down: rosout may be gone, and the exit says so anyway
-        # rclpy refuses two severities from one call site (ValueError): one call each.
-        if ended.status == 'aborted':
-            self._logger.warning(f'{action} goal {ended.status}: {ended.message}')
+        # One call site per severity: rclpy refuses a call site whose severity changes.
+        message = f'{action} goal {ended.status}: {ended.message}'
+        if ended.status == 'aborted' and not ended.logged:
+            self._logger.warning(message)
         else:
-            self._logger.info(f'{action} goal {ended.status}: {ended.message}')
+            self._logger.info(message)
 
 
 def _trajectory_goal(request: FollowJointTrajectory.Goal):

@@ -41,6 +41,7 @@ class Ended:
     status: str
     code: int
     message: str
+    logged: bool = False  # the reason has been logged as a warning already
 
 
 def _finish(done: Future, ended: Ended) -> None:
@@ -84,10 +85,15 @@ class ArmDriver:
         self.active = ArmRun(Execution(goal, spline))
         return self.active
 
-    def preempt(self, reason: str) -> None:
-        """End the running goal, aborted with ``reason``; the arm keeps its current targets."""
+    def preempt(self, reason: str, code: int = INVALID_GOAL, logged: bool = False) -> None:
+        """End the running goal, aborted with ``reason``; the arm keeps its current targets.
+
+        ``code`` is the result's error code: INVALID_GOAL for a goal another command
+        replaced (as ros2_control reports it), PATH_TOLERANCE_VIOLATED for one whose path is
+        blocked; ``logged`` says that the reason has been logged as a warning already.
+        """
         if self.active is not None:
-            _finish(self.active.done, Ended('aborted', INVALID_GOAL, reason))
+            _finish(self.active.done, Ended('aborted', code, reason, logged))
             self.active = None
 
     def cancel(self, world: SimWorld, run: ArmRun) -> None:

@@ -32,9 +32,16 @@ from ur_rg2_sim.controllers import Controllers
 from ur_rg2_sim.frame_publisher import FramePublisher
 from ur_rg2_sim.frames import OPTICAL_FRAME, load_frame_tree, robot_description
 from ur_rg2_sim.robot_model import ROBOT_MODELS, RobotModelError
+from ur_rg2_sim.safety import ProtectiveStop, describe
 from ur_rg2_sim.serialized import SerializedMessage
 from ur_rg2_sim.simulation import NS, Schedule, SimulationLoop
-from ur_rg2_sim.world import DEFAULT_BALL_POSITION, JointStateSample, SimWorld, WorldConfig
+from ur_rg2_sim.world import (
+    DEFAULT_BALL_POSITION,
+    Contact,
+    JointStateSample,
+    SimWorld,
+    WorldConfig,
+)
 
 # Gripper and reset services give up after this much simulation time (the contract's 5 s).
 SERVICE_TIMEOUT = 5.0
@@ -212,6 +219,8 @@ class SimNode(Node):
 
         self._sim = SimulationLoop(self._world, self, s.schedule(), self._make_camera(s))
         self._controllers = Controllers(self, self._sim)
+        # After the controllers: it judges the targets they have just set.
+        self._sim.step_hooks.append(ProtectiveStop(self._on_protective_stop).step)
         self._sim.start()
         self.get_logger().info(
             f'simulating {s.robot_model} + RG2 at {s.physics_rate:g} Hz, real-time factor '
@@ -272,7 +281,7 @@ class SimNode(Node):
         self._apply_joint_message('joint_jog', msg, SimWorld.jog_arm)
 
     def _on_command(self, msg: JointState) -> None:
-        self._apply_joint_message('joint_command', msg, SimWorld.set_arm_targets)
+        self._apply_joint_message('joint_command', msg, SimWorld.move_arm)
 
     def _apply_joint_message(self, topic: str, msg: JointState, apply) -> None:
         try:
@@ -288,6 +297,15 @@ class SimNode(Node):
             self._controllers.arm_commanded(source)
             return apply(world)
         return self._sim.call(command)
+
+    def _on_protective_stop(self, contact: Contact, held: dict[str, float], new: bool) -> None:
+        """Report a stop: abort the running trajectory, warn once (simulation thread)."""
+        message = (f'protective stop: {describe(contact)} ({contact.force:.0f} N); the arm '
+                   f'holds at {degrees_list(held.values())} deg. Commands that move it away '
+                   '(reset, a jog or trajectory back) are obeyed')
+        self._controllers.arm_blocked(message)
+        if new:
+            self.get_logger().warning(message)
 
     def _on_gripper_open(self, request: Trigger.Request,
                          response: Trigger.Response) -> Trigger.Response:
@@ -324,7 +342,7 @@ class SimNode(Node):
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         home = dict(zip(ARM_JOINTS, self.settings.home_position))
         applied = self._sim_result(
-            self._command_arm('reset', lambda world: world.set_arm_targets(home)))
+            self._command_arm('reset', lambda world: world.move_arm(home)))
         if isinstance(applied, str):
             response.success, response.message = False, applied
             return response

@@ -56,8 +56,32 @@ _BALL_SPINNING_FRICTION = 1e-3
 _CONTACT_STIFFNESS = 3e4
 _CONTACT_DAMPING = 1e2
 
+# Self-collision is on only between links that can really meet: the forearm's far end (the
+# wrist) and the gripper folded onto the upper arm or the shoulder, the forearm, wrist and
+# gripper onto the base. Neighbouring links' meshes (convex hulls in pybullet) overlap at
+# their joint in every pose. The forearm's hull is much fatter than the forearm (it spans
+# both joint housings): it comes within 13 mm of wrist_2 at home and met the open fingers in
+# ordinary tool moves, so the gripper folded back onto the forearm is left out.
+_WRIST_AND_GRIPPER = ('wrist_1_link', 'wrist_2_link', 'wrist_3_link', 'rg2_body',
+                      'rg2_left_finger', 'rg2_right_finger')
+SELF_COLLISION_PAIRS = tuple(
+    [('upper_arm_link', link) for link in _WRIST_AND_GRIPPER]
+    + [('shoulder_link', link) for link in ('forearm_link', *_WRIST_AND_GRIPPER)]
+    + [('base_link', link) for link in ('forearm_link', *_WRIST_AND_GRIPPER)])
+
+# A position motor holding its joint keeps it this close to the target (rad), also against a
+# contact; a joint further off is on its way somewhere (or pressed back from there).
+_HOLDING_ERROR = 2e-3
+
+# In a coordinated move (SimWorld.move_arm) no joint is slowed below this share of its
+# velocity limit: one pushed off its target (by a contact) still gets back briskly.
+_MIN_SPEED_SHARE = 0.05
+
 # A finger that moves slower than this is stopped (m/s).
 _FINGER_STOPPED_SPEED = 1e-3
+# The fingers' speed is measured over this long (s): the solver's jitter of a finger resting
+# at the end of its travel averages out.
+_FINGER_SPEED_WINDOW = 0.05
 # Fingers stopped this far short of closed hold something (m of opening).
 _GRASP_MIN_OPENING = 0.002
 
@@ -73,6 +97,17 @@ class WorldConfig:
     ball_color: Sequence[float] = (1.0, 0.0, 0.0, 1.0)
     home_position: Sequence[float] = field(default_factory=lambda: [0.0] * len(ARM_JOINTS))
     gui: bool = False
+
+
+@dataclass(frozen=True)
+class Contact:
+    """A robot link pressing on an obstacle: the floor, the pedestal or another robot link."""
+
+    link: str
+    obstacle: str  # 'floor', 'pedestal' or the other link's name
+    force: float  # N, along the normal
+    approach: float  # m the joints' targets would take the link into the obstacle (<0: away)
+    incidence: float  # sine of the angle of that motion into the surface: 1 head-on, 0 along
 
 
 @dataclass(frozen=True)
@@ -104,7 +139,8 @@ class SimWorld:
         self.limits: dict[str, JointLimit] = joint_limits(self.urdf)
         self.robot = self._p.loadURDF(str(self.urdf), [0, 0, self.pedestal_height],
                                       useFixedBase=True,
-                                      flags=pybullet.URDF_USE_INERTIA_FROM_FILE)
+                                      flags=pybullet.URDF_USE_INERTIA_FROM_FILE
+                                      | pybullet.URDF_USE_SELF_COLLISION)
         self._joint_index = {
             self._p.getJointInfo(self.robot, i)[1].decode(): i
             for i in range(self._p.getNumJoints(self.robot))
@@ -115,7 +151,16 @@ class SimWorld:
         }
         self.joint_names = ARM_JOINTS + GRIPPER_JOINTS
         self._indices = [self._joint_index[name] for name in self.joint_names]
+        self._link_name = {index: name for name, index in self._link_index.items()}
+        self._link_name[-1] = self._p.getBodyInfo(self.robot)[0].decode()
+        self._movable = [i for i in range(self._p.getNumJoints(self.robot))
+                         if self._p.getJointInfo(self.robot, i)[2] != pybullet.JOINT_FIXED]
+        self._obstacle_name = {self.floor: 'floor', self.pedestal: 'pedestal'}
         self._configure_contacts()
+        self._steps = 0
+        # (step, finger positions) when gripper_stopped last looked, and what it found.
+        self._finger_probe: Optional[tuple[int, list[float]]] = None
+        self._finger_moving = True
         self.arm_targets = dict.fromkeys(ARM_JOINTS, 0.0)
         self.set_arm_positions(dict(zip(ARM_JOINTS, config.home_position)))
         self.reset_gripper()  # the RG2 starts fully open
@@ -151,11 +196,17 @@ class SimWorld:
 
     def _configure_contacts(self) -> None:
         # The floor and the pedestal are solid for the whole arm and gripper, except where the
-        # base sits on the plate by design (its mesh reaches a few mm into it). Self-collision
-        # stays off, pybullet's default: neighbouring UR link meshes overlap at the joints and
-        # would lock them; the price is that an arm folded far enough passes through itself.
+        # base sits on the plate by design (its mesh reaches a few mm into it).
         for link in (-1, self._link_index['base_link'], self._link_index['base']):
             self._p.setCollisionFilterPair(self.robot, self.pedestal, link, -1, 0)
+        # Self-collision only for SELF_COLLISION_PAIRS (see there).
+        allowed = {frozenset(self._link_index[name] for name in pair)
+                   for pair in SELF_COLLISION_PAIRS}
+        links = range(-1, self._p.getNumJoints(self.robot))
+        for a in links:
+            for b in links:
+                if a < b and frozenset((a, b)) not in allowed:
+                    self._p.setCollisionFilterPair(self.robot, self.robot, a, b, 0)
         # The RG2's linkage moves both fingers together: a gear constraint keeps them
         # symmetric, so a grasped object is centred between them instead of pushed aside.
         gear = self._p.createConstraint(
@@ -207,9 +258,33 @@ class SimWorld:
                 targetVelocity=velocities[name] if velocities else 0.0)
         return applied
 
+    def move_arm(self, targets: Mapping[str, float]) -> dict[str, float]:
+        """Move the named arm joints to new targets (clamped) together; return the targets set.
+
+        As a UR's movej: every joint still on its way goes at the speed that brings it to its
+        target when the slowest one arrives, so the arm moves along a straight line in joint
+        space. Joints moving on their own, each at its limit, reach their targets at
+        different times, and the short moves come first: from a folded pose, a reset brought
+        the shoulder down before the elbow had opened and pressed the wrist into the floor.
+        """
+        applied = {name: self.clamp(name, value) for name, value in targets.items()}
+        self.arm_targets.update(applied)
+        positions = self.joint_states().positions
+        times = {name: abs(self.arm_targets[name] - position) / self.limits[name].velocity
+                 for name, position in zip(ARM_JOINTS, positions)}
+        slowest = max(times.values())
+        for name in ARM_JOINTS:
+            limit = self.limits[name]
+            share = times[name] / slowest if slowest > 0 else 1.0
+            self._p.setJointMotorControl2(
+                self.robot, self._joint_index[name], pybullet.POSITION_CONTROL,
+                targetPosition=self.arm_targets[name], force=limit.effort,
+                maxVelocity=limit.velocity * max(share, _MIN_SPEED_SHARE))
+        return applied
+
     def jog_arm(self, deltas: Mapping[str, float]) -> dict[str, float]:
-        """Add ``deltas`` to the named joints' current targets; return the targets set."""
-        return self.set_arm_targets(
+        """Add ``deltas`` to the named joints' current targets, moving together (move_arm)."""
+        return self.move_arm(
             {name: self.arm_targets[name] + delta for name, delta in deltas.items()})
 
     def set_arm_positions(self, positions: Mapping[str, float]) -> None:
@@ -243,6 +318,8 @@ class SimWorld:
         """
         self.gripper_target = min(max(opening, 0.0), RG2_MAX_OPENING)
         self.gripper_force = min(max(force, RG2_MIN_FORCE), RG2_MAX_FORCE)
+        self._finger_probe = None  # moving from now on, until seen stopped
+        self._finger_moving = True
         for name in GRIPPER_JOINTS:
             self._p.setJointMotorControl2(
                 self.robot, self._joint_index[name], pybullet.POSITION_CONTROL,
@@ -261,9 +338,26 @@ class SimWorld:
                    for name in GRIPPER_JOINTS) / len(GRIPPER_JOINTS)
 
     def gripper_stopped(self) -> bool:
-        """Return whether both fingers have stopped moving (at the target or blocked)."""
-        return all(abs(self._p.getJointState(self.robot, self._joint_index[name])[1])
-                   < _FINGER_STOPPED_SPEED for name in GRIPPER_JOINTS)
+        """Return whether both fingers have stopped moving (at the target or blocked).
+
+        Judged by how far the fingers moved over the last ``_FINGER_SPEED_WINDOW`` (or more)
+        at which this was asked, not by the speed the solver reports: with the gripper on its
+        side or upside down (the arm folded), or a finger pressed on the floor, the fingers
+        rest at the end of their travel and the reported speed jitters by several mm/s
+        without any motion.
+        """
+        positions = [self._p.getJointState(self.robot, self._joint_index[name])[0]
+                     for name in GRIPPER_JOINTS]
+        if self._finger_probe is None:
+            self._finger_probe = (self._steps, positions)
+            return False
+        steps, before = self._finger_probe
+        if (self._steps - steps) * self.dt >= _FINGER_SPEED_WINDOW:
+            elapsed = (self._steps - steps) * self.dt
+            self._finger_moving = any(abs(a - b) / elapsed >= _FINGER_STOPPED_SPEED
+                                      for a, b in zip(positions, before))
+            self._finger_probe = (self._steps, positions)
+        return not self._finger_moving
 
     def gripper_holds_object(self) -> bool:
         """Return whether the closed fingers are held apart by something between them."""
@@ -278,6 +372,7 @@ class SimWorld:
     def step(self) -> None:
         """Advance the simulation by one physics step."""
         self._p.stepSimulation()
+        self._steps += 1
 
     def joint_states(self) -> JointStateSample:
         """Return the current state of the arm and gripper joints."""
@@ -285,6 +380,76 @@ class SimWorld:
         return JointStateSample(
             self.joint_names,
             [s[0] for s in states], [s[1] for s in states], [s[3] for s in states])
+
+    def obstacle_contacts(self) -> list[Contact]:
+        """Return the links pressing on the floor, the pedestal or the arm (last step).
+
+        One Contact per link and obstacle: ``force`` is the sum over its contact points,
+        ``approach`` how far the most loaded point would move into the obstacle if every arm
+        joint went from where it is to its target (the Jacobian there times the joints'
+        remaining travel): positive while a command drives the link into it; ``incidence``
+        the sine of the angle between that motion and the obstacle's surface. A joint within
+        ``_HOLDING_ERROR`` of its target counts as holding, not moving.
+        """
+        pairs: dict[tuple[int, int, int], list] = {}
+        for c in self._p.getContactPoints(self.robot):
+            if c[9] > 0.0 and (c[2] == self.robot or c[2] in self._obstacle_name):
+                pairs.setdefault((c[2], c[3], c[4]), []).append(c)
+        if not pairs:
+            return []
+        states = self._p.getJointStates(self.robot, self._movable)
+        positions = [s[0] for s in states]
+        travel = dict.fromkeys(self._movable, 0.0)
+        for name, index in zip(ARM_JOINTS, self._indices):
+            remaining = self.arm_targets[name] - states[self._movable.index(index)][0]
+            travel[index] = remaining if abs(remaining) > _HOLDING_ERROR else 0.0
+        travel = [travel[i] for i in self._movable]
+        moving = any(travel)
+        zeros = [0.0] * len(self._movable)
+        found = []
+        for (body, link_a, link_b), points in pairs.items():
+            c = max(points, key=lambda point: point[9])
+            approach = incidence = 0.0
+            if moving:
+                motion = self._point_motion(link_a, c[5], positions, travel, zeros)
+                if body == self.robot:
+                    other = self._point_motion(link_b, c[6], positions, travel, zeros)
+                    motion = [m - o for m, o in zip(motion, other)]
+                # The normal points from the obstacle (B) toward the robot link (A).
+                approach = -sum(m * n for m, n in zip(motion, c[7]))
+                incidence = approach / max(math.sqrt(sum(m * m for m in motion)), 1e-12)
+            # Of two links, the one further down the chain (the wrist, not the upper arm) is
+            # the one that touched; the approach is the same either way round.
+            link, other_link = ((link_a, link_b) if body != self.robot or link_a > link_b
+                                else (link_b, link_a))
+            found.append(Contact(self._link_name[link],
+                                 self._obstacle_name.get(body) or self._link_name[other_link],
+                                 sum(point[9] for point in points), approach, incidence))
+        return found
+
+    def _point_motion(self, link: int, point, positions, travel, zeros) -> list[float]:
+        """Return how far ``point`` (world) on ``link`` moves for the joint ``travel``."""
+        com_position, com_orientation = self._p.getLinkState(self.robot, link)[:2]
+        local, _ = self._p.multiplyTransforms(
+            *self._p.invertTransform(com_position, com_orientation), point, [0, 0, 0, 1])
+        linear, _ = self._p.calculateJacobian(self.robot, link, local, positions, zeros, zeros)
+        return [sum(row[i] * travel[i] for i in range(len(travel))) for row in linear]
+
+    def hold_arm(self, back_off: float = 0.0) -> dict[str, float]:
+        """Hold the arm where it is, or ``back_off`` rad back the way it was going; return it.
+
+        Backing off takes the load off a contact the arm was driven into: held exactly where
+        it pressed, each motor would go on pushing with its full torque against the contact.
+        The way back is the reverse of the joints' remaining travel to their targets, scaled
+        so that the joint with the most travel moves ``back_off``.
+        """
+        positions = self.joint_states().positions[:len(ARM_JOINTS)]
+        travel = [self.arm_targets[name] - position
+                  for name, position in zip(ARM_JOINTS, positions)]
+        largest = max(abs(t) for t in travel)
+        scale = back_off / largest if largest > _HOLDING_ERROR else 0.0
+        return self.set_arm_targets({name: position - scale * t for name, position, t
+                                     in zip(ARM_JOINTS, positions, travel)})
 
     def link_pose(self, link: str = TCP_LINK) -> tuple[tuple, tuple]:
         """Return the world position and xyzw orientation of a robot link."""
@@ -328,8 +493,7 @@ class SimWorld:
         elbow-down solutions, which push the upper arm into the floor, or a folded wrist with
         some 20 cm less reach.
         """
-        movable = [i for i in range(self._p.getNumJoints(self.robot))
-                   if self._p.getJointInfo(self.robot, i)[2] != pybullet.JOINT_FIXED]
+        movable = self._movable
         lower, upper = zip(*[self._p.getJointInfo(self.robot, i)[8:10] for i in movable])
         seed = [self._p.getJointState(self.robot, i)[0] for i in movable]
         elbow = movable.index(self._joint_index['elbow_joint'])

@@ -1,0 +1,137 @@
+"""The protective stop in the plain world (no ROS): every wedge of issue 21 stops and recovers.
+
+Each case drives the arm from home into the floor, the pedestal or itself with one accepted
+command (the sim node's joint_command path, SimWorld.move_arm), then checks that the arm holds
+where it touched, that the RG2 still opens and closes, and that going home works.
+"""
+
+import math
+
+import pytest
+from ur_rg2_common.contract import ARM_JOINTS, RG2_MAX_OPENING
+from ur_rg2_sim.safety import ProtectiveStop, describe
+from ur_rg2_sim.simulation import NS
+from ur_rg2_sim.world import SELF_COLLISION_PAIRS, SimWorld, WorldConfig
+
+# The contract's bound for reset, s of simulation time.
+HOME_WITHIN = 10.0
+HOME_TOLERANCE = math.radians(0.5)
+STILL = math.radians(0.2)  # a held joint moves less than this in a second
+
+WEDGES = {
+    # issue 21's cases: the elbow clamped to +pi from home, the shoulder into the floor, the
+    # wrist into the pedestal; folding the elbow shut meets the arm itself.
+    'elbow to +pi': ({'elbow_joint': 100.0}, 'the floor'),
+    'shoulder_lift 1.6': ({'shoulder_lift_joint': 1.6}, 'the floor'),
+    'wrist into the pedestal': ({'shoulder_lift_joint': -0.9, 'elbow_joint': 2.9},
+                                'wrist_2_link touched the pedestal'),
+    'elbow folded shut': ({'elbow_joint': -4.0}, 'the arm itself (upper_arm_link)'),
+}
+
+
+class Rig:
+    """A world stepped with the protective stop before every step, as the sim node does."""
+
+    def __init__(self, model: str = 'ur5') -> None:
+        self.world = SimWorld(WorldConfig(robot_model=model))
+        self.stops: list[tuple[str, bool]] = []
+        self.now_ns = 0
+        self.stop = ProtectiveStop(lambda c, held, new: self.stops.append((describe(c), new)))
+
+    def run(self, seconds: float, until=None) -> float:
+        """Step up to ``seconds``; return the time taken until ``until()`` held (or all)."""
+        for i in range(round(seconds / self.world.dt)):
+            if until is not None and until():
+                return i * self.world.dt
+            self.stop.step(self.world, self.now_ns)
+            self.world.step()
+            self.now_ns += round(self.world.dt * NS)
+        return seconds
+
+    def arm(self) -> list[float]:
+        return self.world.joint_states().positions[:len(ARM_JOINTS)]
+
+    def at_home(self) -> bool:
+        return all(abs(p) < HOME_TOLERANCE for p in self.arm())
+
+    def gripper_answers(self, target: float, free: bool = True) -> None:
+        """Drive the fingers to ``target``; check they settle (there, if ``free``)."""
+        self.world.command_gripper(target)
+        # Asked every step, as the gripper services and action do: stopped for the last 0.1 s.
+        stopped = []
+        for _ in range(round(3.0 / self.world.dt)):
+            self.run(self.world.dt)
+            stopped.append(self.world.gripper_stopped())
+        assert all(stopped[-round(0.1 / self.world.dt):])
+        if free:
+            assert self.world.gripper_opening() == pytest.approx(target, abs=2e-3)
+
+
+@pytest.fixture
+def rig():
+    made = Rig()
+    yield made
+    made.world.close()
+
+
+@pytest.mark.parametrize('case', list(WEDGES))
+def test_a_wedge_stops_at_the_touch_and_every_way_out_works(rig, case):
+    command, touched = WEDGES[case]
+    rig.world.move_arm(command)
+    rig.run(3.0)
+    warned = [what for what, new in rig.stops if new]
+    assert len(warned) == 1 and touched in warned[0], rig.stops
+    # Held where it touched: no load building up, nothing creeping.
+    before = rig.arm()
+    rig.run(1.0)
+    assert max(abs(a - b) for a, b in zip(rig.arm(), before)) < STILL
+    assert all(c.force < 200.0 for c in rig.world.obstacle_contacts())
+    # The RG2 answers: its fingers settle, though one may rest on the floor.
+    rig.gripper_answers(0.0, free=False)
+    rig.gripper_answers(RG2_MAX_OPENING, free=False)
+    rig.world.move_arm(dict.fromkeys(ARM_JOINTS, 0.0))
+    assert rig.run(HOME_WITHIN, rig.at_home) < HOME_WITHIN, rig.arm()
+    rig.gripper_answers(0.0)
+    rig.gripper_answers(RG2_MAX_OPENING)
+
+
+def test_a_key_held_against_the_floor_stops_once_and_a_jog_back_moves(rig):
+    # keys' 'z' held down: elbow +5 degrees per repeat, 30 repeats a second.
+    for _ in range(60):
+        rig.world.jog_arm({'elbow_joint': math.radians(5.0)})
+        rig.run(1 / 30)
+    assert [new for _, new in rig.stops].count(True) == 1, rig.stops
+    assert 'touched the floor' in rig.stops[0][0]
+    held = rig.arm()[2]
+    assert held < math.radians(60.0)  # stopped at the touch, not pressed in 300 degrees on
+    rig.world.jog_arm({'elbow_joint': -math.radians(10.0)})
+    rig.run(1.0)
+    assert rig.arm()[2] == pytest.approx(held - math.radians(10.0), abs=HOME_TOLERANCE)
+
+
+def test_moving_along_the_floor_is_not_stopped(rig):
+    rig.world.move_arm({'shoulder_lift_joint': 1.6})
+    rig.run(2.0)
+    count = len(rig.stops)
+    # A turn about the vertical axis slides the fingers over the floor: no deeper in.
+    rig.world.jog_arm({'shoulder_pan_joint': 0.5})
+    rig.run(2.0)
+    assert rig.arm()[0] == pytest.approx(0.5, abs=HOME_TOLERANCE)
+    assert len(rig.stops) == count
+
+
+@pytest.mark.parametrize('model', ['ur5', 'ur3'])
+def test_self_collision_pairs_are_clear_in_ordinary_poses(model):
+    world = SimWorld(WorldConfig(robot_model=model))
+    try:
+        index = {name: world.link_index(name) for pair in SELF_COLLISION_PAIRS for name in pair}
+        ready = dict(zip(ARM_JOINTS, (0.0, -1.57, 1.57, -1.57, -1.57, 0.0)))
+        for pose in ({}, ready, {'wrist_1_joint': 2.5}, {'wrist_1_joint': -2.5}):
+            world.set_arm_positions({**dict.fromkeys(ARM_JOINTS, 0.0), **pose})
+            for a, b in SELF_COLLISION_PAIRS:
+                points = world._p.getClosestPoints(world.robot, world.robot, 0.02, index[a],
+                                                   index[b])
+                assert not points, (pose, a, b)
+    finally:
+        world.close()
+

@@ -44,7 +44,7 @@ from ur_rg2_motion.planning import gripper_down
 from ur_rg2_sim.robot_model import write_robot_urdf
 from ur_rg2_sim.world import PEDESTAL_HEIGHT
 
-from bench.processes import bench_env, node_process, spun_node
+from bench.processes import bench_env, call_service, node_process, spun_node
 from bench.teleop_bench import _keys_terminal
 
 IK_SOLVES = 5000
@@ -169,17 +169,7 @@ class _Probe:
                 raise RuntimeError(f'timed out after {timeout:.0f} s waiting for {what}')
 
     def call(self, service: str, kind=Trigger, request=None, timeout: float = CALL_TIMEOUT_S):
-        if service not in self._clients:
-            self._clients[service] = self.node.create_client(kind, service)
-        client = self._clients[service]
-        if not client.wait_for_service(timeout_sec=timeout):
-            raise RuntimeError(f'service {service} not available')
-        future = client.call_async(request or kind.Request())
-        done = threading.Event()
-        future.add_done_callback(lambda _: done.set())
-        if not done.wait(timeout):
-            raise RuntimeError(f'no answer from {service} within {timeout:.0f} s')
-        return future.result()
+        return call_service(self.node, self._clients, service, kind, request, timeout)
 
     def set_ball(self, position) -> None:
         request = SetParameters.Request(parameters=[

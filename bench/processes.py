@@ -16,6 +16,7 @@ import time
 
 import numpy as np
 import rclpy
+from rclpy.client import Client
 from rclpy.context import Context
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
@@ -80,6 +81,26 @@ def node_process(executable: str, parameters: dict[str, str], domain_id: int,
                 process.wait()
             log.seek(0)
             process.log = log.read().decode(errors='replace')  # for what it says on exit
+
+
+def call_service(node: Node, clients: dict[str, Client], service: str, kind: type,
+                 request: object | None, timeout: float) -> object:
+    """Call ``service`` from ``node`` (spun on another thread); return the answer.
+
+    ``clients`` keeps one client per service between calls. Raises RuntimeError when the
+    service is not there, or does not answer, within ``timeout`` s.
+    """
+    if service not in clients:
+        clients[service] = node.create_client(kind, service)
+    client = clients[service]
+    if not client.wait_for_service(timeout_sec=timeout):
+        raise RuntimeError(f'service {service} not available')
+    future = client.call_async(request or kind.Request())
+    done = threading.Event()
+    future.add_done_callback(lambda _: done.set())
+    if not done.wait(timeout):
+        raise RuntimeError(f'no answer from {service} within {timeout:.0f} s')
+    return future.result()
 
 
 @contextmanager

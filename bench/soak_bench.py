@@ -34,7 +34,7 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
 from bench.motion_bench import ball_placement
-from bench.processes import node_process, percentile, rss_mb, spun_node
+from bench.processes import call_service, node_process, percentile, rss_mb, spun_node
 from bench.viewer_bench import _free_port
 
 DOMAIN_ID = 217
@@ -83,17 +83,7 @@ class _User:
             self.ages.append((now, (sim_now - stamp) / 1e6))
 
     def call(self, service: str, kind=Trigger, request=None):
-        if service not in self._clients:
-            self._clients[service] = self.node.create_client(kind, service)
-        client = self._clients[service]
-        if not client.wait_for_service(timeout_sec=CALL_TIMEOUT_S):
-            raise RuntimeError(f'service {service} not available')
-        future = client.call_async(request or kind.Request())
-        done = threading.Event()
-        future.add_done_callback(lambda _: done.set())
-        if not done.wait(CALL_TIMEOUT_S):
-            raise RuntimeError(f'no answer from {service} within {CALL_TIMEOUT_S:.0f} s')
-        return future.result()
+        return call_service(self.node, self._clients, service, kind, request, CALL_TIMEOUT_S)
 
     def trigger(self, service: str) -> bool:
         try:

@@ -16,6 +16,7 @@ import gymnasium as gym
 import numpy as np
 from ur_rg2_learning import PICK_ID, REACH_ID
 from ur_rg2_learning.actor import Actor
+from ur_rg2_learning.evaluate import success_rate
 
 BIN = Path(sys.executable).parent
 STEPS = 1500
@@ -92,26 +93,10 @@ def test_a_short_pick_run_with_cloned_demonstrations_beats_random(tmp_path):
     actor = Actor.load(out)
     assert actor.env_id == PICK_ID and actor.meta['demos'] == 30 and actor.meta['bc'] == 2.5
     rng = np.random.default_rng(0)
-    learned = lifted(actor, EPISODES)
-    random = lifted(lambda _: rng.uniform(-1, 1, 4), EPISODES)
+    learned = round(success_rate(actor, EPISODES, SEED) * EPISODES)
+    random = round(success_rate(lambda _: rng.uniform(-1, 1, 4), EPISODES, SEED, PICK_ID)
+                   * EPISODES)
     assert learned >= 3 and random == 0, (learned, random)
-
-
-def lifted(policy, episodes: int) -> int:
-    """Return in how many held-out Pick episodes the policy ends with the ball lifted."""
-    env = gym.make(PICK_ID)
-    successes = 0
-    try:
-        for episode in range(episodes):
-            observation, _ = env.reset(seed=SEED + episode)
-            done = False
-            while not done:
-                observation, _, terminated, truncated, info = env.step(policy(observation))
-                done = terminated or truncated
-            successes += bool(info['is_success'])
-    finally:
-        env.close()
-    return successes
 
 
 def test_evaluate_policy_refuses_a_directory_without_a_policy(tmp_path):

@@ -25,6 +25,7 @@ class GraphNode:
 
 
 # What the launch file starts, in start order. keys is not here: it needs a terminal.
+# ur_rg2_common has no node of its own: every node here is built on it.
 NODES: tuple[GraphNode, ...] = (
     GraphNode('sim', 'ur_rg2_sim', 'sim', 'ur_rg2_sim'),
     GraphNode('vision', 'ur_rg2_vision', 'vision', 'ur_rg2_vision'),

@@ -8,7 +8,9 @@ Runs the exported actor (NumPy, no torch) on fresh environments seeded ``--seed`
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
 import sys
+from typing import Any
 
 import gymnasium as gym
 
@@ -19,8 +21,13 @@ from ur_rg2_learning.actor import Actor, PolicyError
 DEFAULT_SEED = 1_000_000
 
 
-def success_rate(actor: Actor, episodes: int, seed: int, env_id: str | None = None) -> float:
-    """Return the share of ``episodes`` the actor finishes successfully."""
+def success_rate(actor: Actor | Callable[[Any], Any], episodes: int, seed: int,
+                 env_id: str | None = None) -> float:
+    """Return the share of ``episodes`` the actor finishes successfully.
+
+    ``actor`` is an :class:`Actor` or any function from observation to action, with
+    ``env_id`` then naming the environment.
+    """
     env = gym.make(env_id or actor.env_id)
     successes = 0
     try:

@@ -173,8 +173,11 @@ def test_interface_show_of_the_built_message_packages(env):
     assert 'ur_rg2_bringup graph' in ros2(env, 'pkg', 'executables', 'ur_rg2_bringup')
 
 
-def test_ctrl_c_twice_stops_the_launched_graph_cleanly(graph):
-    graph.ctrl_c(times=2)  # the second one arrives while the nodes shut down
+def test_sigint_to_launch_then_ctrl_c_stops_the_launched_graph_cleanly(graph):
+    # SIGINT to launch alone, as a script or a harness sends it: launch must pass it on.
+    graph.process.send_signal(signal.SIGINT)
+    time.sleep(0.2)
+    graph.ctrl_c()  # and Ctrl-C on top, arriving while the nodes shut down
     assert graph.wait(timeout=60) == 0
     output = graph.output
     for node in NODES:

@@ -16,11 +16,20 @@ SIGTERM after ``sigterm_timeout`` s, then SIGKILL).
 
 import re
 import shlex
+import signal
 
 from launch import LaunchContext, LaunchDescription
-from launch.actions import DeclareLaunchArgument, OpaqueFunction, RegisterEventHandler, Shutdown
-from launch.event_handlers import OnProcessExit, OnProcessIO
-from launch.events.process import ProcessExited, ProcessIO
+from launch.actions import (
+    DeclareLaunchArgument,
+    EmitEvent,
+    OpaqueFunction,
+    RegisterEventHandler,
+    Shutdown,
+)
+from launch.event_handlers import OnProcessExit, OnProcessIO, OnProcessStart, OnShutdown
+from launch.events import matches_action
+from launch.events.process import ProcessExited, ProcessIO, SignalProcess
+from launch.events.shutdown import Shutdown as ShutdownEvent
 import launch.logging
 from launch_ros.actions import Node
 from ur_rg2_bringup.graph import (
@@ -61,6 +70,7 @@ def _graph(context: LaunchContext) -> list:
         logger.warning(f'{message}: ignored')
     extra = shlex.split(given.get(ROS_ARGS_ARGUMENT[0], ''))
     last_errors: dict[str, str] = {}
+    started: list[Node] = []
     actions: list = []
     for spec in nodes:
         node = Node(package=spec.package, executable=spec.executable, name=spec.node_name,
@@ -68,6 +78,9 @@ def _graph(context: LaunchContext) -> list:
                     ros_arguments=ros_arguments[spec.name] + extra)
         actions += [
             node,
+            RegisterEventHandler(OnProcessStart(
+                target_action=node, on_start=lambda _event, _context, node=node: started.append(
+                    node))),
             RegisterEventHandler(OnProcessIO(
                 target_action=node,
                 on_stdout=lambda event, name=spec.name: _remember_error(event, name, last_errors),
@@ -79,7 +92,22 @@ def _graph(context: LaunchContext) -> list:
                     event, context, name, last_errors, logger),
             )),
         ]
+    # On SIGINT launch sends its nodes nothing, trusting the terminal's Ctrl-C to have reached
+    # them too; a SIGINT to launch alone (a script, a test harness, a service manager) would
+    # then stop them only by SIGTERM after sigterm_timeout. So every node gets SIGINT here;
+    # one that had it from the terminal already takes the second in its stride.
+    actions.append(RegisterEventHandler(OnShutdown(
+        on_shutdown=lambda event, _context: _interrupt(event, started))))
     return actions
+
+
+def _interrupt(event: ShutdownEvent, started: list[Node]) -> list | None:
+    """On a SIGINT to launch, SIGINT to every node started (launch signals no unstarted one)."""
+    if not event.due_to_sigint:
+        return None
+    return [EmitEvent(event=SignalProcess(signal_number=signal.SIGINT,
+                                          process_matcher=matches_action(node)))
+            for node in started]
 
 
 def _remember_error(event: ProcessIO, name: str, last_errors: dict[str, str]) -> None:

@@ -31,9 +31,7 @@ def graph_launch_file() -> str:
 def run_graph(launch_arguments: Sequence[str]) -> int:
     """Run the graph until it stops; return 1 (saying why last) if a node ended it, else 0."""
     reasons: list[str] = []
-    # Non-interactive: launch sends its nodes SIGINT itself. It runs in a session of its own
-    # (run.py), so a Ctrl-C in the terminal does not reach them directly.
-    service = LaunchService(argv=list(launch_arguments), noninteractive=True)
+    service = LaunchService(argv=list(launch_arguments))
     service.include_launch_description(LaunchDescription([
         RegisterEventHandler(OnShutdown(
             on_shutdown=lambda event, _context: reasons.append(event.reason))),

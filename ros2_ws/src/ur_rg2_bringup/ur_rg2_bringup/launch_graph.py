@@ -17,9 +17,9 @@ from launch.actions import IncludeLaunchDescription, RegisterEventHandler
 from launch.event_handlers import OnShutdown
 from launch.launch_description_sources import PythonLaunchDescriptionSource
 
-# Shutdown reasons that are a normal end of the graph: launch's own words for a signal, and
-# for LaunchService.shutdown().
-NORMAL_ENDS = ('ctrl-c (SIGINT)', 'idle', 'LaunchService.shutdown() called')
+# Shutdown reasons that are a normal end of the graph, in launch's own words: a SIGINT (what
+# the graph executable sends to stop it), or nothing left to run.
+NORMAL_ENDS = ('ctrl-c (SIGINT)', 'idle')
 
 
 def graph_launch_file() -> str:

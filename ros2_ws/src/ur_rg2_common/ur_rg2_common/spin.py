@@ -69,33 +69,35 @@ def run_node(make_node: Callable[[], N], args: Optional[list[str]], logger_name:
     node = None
     try:
         try:
-            node = make_node()
-        except startup_errors as error:
-            if on_startup_error is not None:
-                return on_startup_error(error)
-            get_logger(logger_name).error(f'cannot start: {error}')
-            return 1
-        blocking_group = getattr(node, 'blocking_group', None)
-        if blocking_group is not None:
-            executor.add_blocking_group(blocking_group)
-        executor.add_node(node)
-        # Not executor.spin(): now and then (about 1 stop in 10 on a loaded machine) the
-        # executor slept on in its wait set after a signal had shut the context down. A
-        # bounded wait notices the shutdown within a quarter second whatever happens.
-        while rclpy.ok():
-            message = failure(node) if failure is not None else None
-            if message is not None:
-                node.get_logger().fatal(message)
+            try:
+                node = make_node()
+            except startup_errors as error:
+                if on_startup_error is not None:
+                    return on_startup_error(error)
+                get_logger(logger_name).error(f'cannot start: {error}')
                 return 1
-            executor.spin_once(timeout_sec=SPIN_WAIT_S)
+            blocking_group = getattr(node, 'blocking_group', None)
+            if blocking_group is not None:
+                executor.add_blocking_group(blocking_group)
+            executor.add_node(node)
+            # Not executor.spin(): now and then (about 1 stop in 10 on a loaded machine) the
+            # executor slept on in its wait set after a signal had shut the context down. A
+            # bounded wait notices the shutdown within a quarter second whatever happens.
+            while rclpy.ok():
+                message = failure(node) if failure is not None else None
+                if message is not None:
+                    node.get_logger().fatal(message)
+                    return 1
+                executor.spin_once(timeout_sec=SPIN_WAIT_S)
+        except Exception as error:
+            # SIGINT/SIGTERM shut the context down; during start-up or mid-spin that surfaces
+            # as an RCLError, which is no error of ours. The KeyboardInterrupt of that same
+            # SIGINT often follows inside this handler, so the outer try catches it.
+            if rclpy.ok():
+                get_logger(logger_name).error(f'stopped: {error}')
+                raise
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except Exception as error:
-        # SIGINT/SIGTERM shut the context down; during start-up or mid-spin that surfaces as
-        # an RCLError, which is no error of ours.
-        if rclpy.ok():
-            get_logger(logger_name).error(f'stopped: {error}')
-            raise
     finally:
         # Teardown is short and bounded. ``ros2 launch`` and ``ros2 run`` send their own SIGINT
         # right after the terminal's, and that second one must not interrupt it with a

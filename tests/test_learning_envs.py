@@ -10,9 +10,21 @@ import gymnasium as gym
 from gymnasium.utils.env_checker import check_env
 import numpy as np
 import pytest
+from ur_rg2_common.contract import ARM_JOINTS
 from ur_rg2_learning import PICK_ID, REACH_ID
-from ur_rg2_learning.envs import BALL_RADIUS, REACH_TOLERANCE
+from ur_rg2_learning.envs import (
+    BALL_RADIUS,
+    CONTROL_RATE,
+    MAX_STEP,
+    REACH_TOLERANCE,
+    START_TCP,
+    move_target,
+    start_joints,
+    step_duration,
+)
 from ur_rg2_learning.scripted import pick_action
+from ur_rg2_motion.kinematics import urdf_velocity_limits
+from ur_rg2_sim.trajectory import Point, TrajectoryError, plan, validate
 
 # base_link: the floor is 0.2 m below it (the pedestal), so a ball on it lies at z = -0.17.
 BALL = np.array([0.45, -0.2])
@@ -159,3 +171,39 @@ def test_the_scripted_pick_solves_pick_episodes(make):
             done = terminated or truncated
         successes += info['is_success']
     assert successes >= 4
+
+
+def test_a_step_too_fast_for_the_controller_is_stretched_not_refused(make):
+    """The policy node's step timing, judged by the trajectory controller's own check.
+
+    The biggest step out and down from the start turns the shoulder faster in one control
+    period than its limit allows: the controller would refuse that goal (the learned Pick
+    then lost every ball near the edge of the workspace); stretched, it takes it.
+    """
+    env = make(PICK_ID).unwrapped
+    limits = urdf_velocity_limits(env.world.urdf.read_text())
+    start = np.array(START_TCP)
+    current = start_joints(env.arm, start)
+    target, goal = move_target(env.arm, start, current, np.array([1.0, -1.0, -1.0]))
+    assert np.allclose(target, start + MAX_STEP * np.array([1.0, -1.0, -1.0]))
+
+    def controller_plan(duration: float) -> None:
+        checked = validate(ARM_JOINTS, [Point(duration, goal)], ARM_JOINTS)
+        plan(checked, 0.0, None, current, np.zeros(len(ARM_JOINTS)), limits)
+
+    with pytest.raises(TrajectoryError, match='above its limit'):
+        controller_plan(1.0 / CONTROL_RATE)
+    duration = step_duration(current, goal, limits)
+    assert 1.0 / CONTROL_RATE < duration < 3.0 / CONTROL_RATE
+    controller_plan(duration)
+    # A step the joints manage in one control period keeps it.
+    _, near = move_target(env.arm, start, current, np.full(3, 0.2))
+    assert step_duration(current, near, limits) == pytest.approx(1.0 / CONTROL_RATE)
+
+
+def test_a_target_out_of_reach_keeps_the_target_and_joints(make):
+    env = make(PICK_ID).unwrapped
+    current = start_joints(env.arm, np.array(START_TCP))
+    beyond = np.array([0.78, 0.78, 0.38])  # the step takes it to (0.8, 0.8, 0.4): 1.1 m out
+    target, joints = move_target(env.arm, beyond, current, np.ones(3))
+    assert np.array_equal(target, beyond) and np.array_equal(joints, current)

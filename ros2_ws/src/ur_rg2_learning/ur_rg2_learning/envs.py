@@ -30,7 +30,7 @@ from ur_rg2_motion.kinematics import (
     KinematicsError,
     arm_on_pedestal,
 )
-from ur_rg2_motion.planning import PICK_POSTURE, gripper_down
+from ur_rg2_motion.planning import PICK_POSTURE, gripper_down, plan_joint_move
 
 CONTROL_RATE = 10.0  # Hz: one action per 0.1 s of simulation time
 MAX_STEP = 0.05  # m of TCP motion per step and axis at |action| = 1 (0.5 m/s)
@@ -67,6 +67,35 @@ def tcp_pose(position: np.ndarray) -> np.ndarray:
     pose = _DOWN.copy()
     pose[:3, 3] = position
     return pose
+
+
+def move_target(arm: ArmKinematics, target: np.ndarray, joints: np.ndarray,
+                action: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Return one step's TCP target and the joints that reach it: the env's and the node's.
+
+    The target moves by ``MAX_STEP`` times the action's first three components from
+    ``target`` (clipped to :func:`target_bounds`); inverse kinematics starts from ``joints``.
+    Where no joints reach it (pedestal, reach), ``target`` and ``joints`` are kept: the arm
+    holds its target.
+    """
+    low, high = target_bounds(arm)
+    moved = np.clip(target + MAX_STEP * np.asarray(action[:3], dtype=float), low, high)
+    try:
+        return moved, arm.solve(tcp_pose(moved), joints)
+    except KinematicsError:
+        return target, joints
+
+
+def step_duration(current: np.ndarray, goal: np.ndarray,
+                  velocity_limits: np.ndarray) -> float:
+    """Return the time (s) from the step's start at which the joints should be at ``goal``.
+
+    One control period, stretched when a joint would need more than its velocity limit to
+    get from ``current`` there in it: the trajectory controller refuses such a goal instead
+    of slowing it down, and near the edge of the workspace one step of a few centimetres can
+    turn the shoulder that fast. (The environment's joint motors cap the speed instead.)
+    """
+    return plan_joint_move(current, goal, velocity_limits, 1.0, 1.0 / CONTROL_RATE).duration
 
 
 def start_joints(arm: ArmKinematics, position: np.ndarray) -> np.ndarray:
@@ -129,7 +158,6 @@ class UrRg2Env(gym.Env):
         height = self.world.pedestal_height
         self._base = np.array([0.0, 0.0, height])  # base_link in the world frame
         self.arm = arm_on_pedestal(self.world.urdf.read_text(), height)
-        self._low, self._high = target_bounds(self.arm)
         observation, goal = self._sizes()
         self.observation_space = spaces.Dict({
             'observation': _vector(observation),
@@ -215,13 +243,7 @@ class UrRg2Env(gym.Env):
     def _command(self, action: np.ndarray) -> None:
         # From the last commanded target, not the measured TCP: a zero action then holds the
         # arm still instead of letting it creep after its own tracking error.
-        target = np.clip(self._target + MAX_STEP * action[:3], self._low, self._high)
-        try:
-            joints = self.arm.solve(tcp_pose(target), self._joints)
-            self._target = target
-        except KinematicsError:
-            joints = self._joints  # refused (pedestal, reach): the arm holds its target
-        self._joints = joints
+        self._target, self._joints = move_target(self.arm, self._target, self._joints, action)
 
     def _move_arm(self, previous: np.ndarray, joints: np.ndarray) -> None:
         """Take the arm from the last step's joint targets to this one's in one control period.

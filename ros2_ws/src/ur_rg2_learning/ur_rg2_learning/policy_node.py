@@ -6,16 +6,21 @@ the RG2 opens), then the policy acts step by step. Its observation is built as t
 environment builds it (ur_rg2_learning.envs.reach_observation / pick_observation): the TCP
 from ``joint_states`` (closed-form forward kinematics of ``robot_description``), the RG2's
 opening from its finger joints, the ball from the latest ``ball/position`` transformed
-through the tree into ``base_link``. Each action moves the TCP target as in the environment;
-the joints that reach it (closed-form inverse kinematics) go to the sim's
+through the tree into ``base_link``. Each action moves the TCP target as in the environment
+(ur_rg2_learning.envs.move_target); the joints that reach it go to the sim's
 ``joint_trajectory_controller/follow_joint_trajectory`` as a one-point trajectory due one
-control period (0.1 s) later, and a change of Pick's gripper sign to
+control period (0.1 s) later, or later where a joint would be too fast for that
+(ur_rg2_learning.envs.step_duration: the controller refuses a goal too fast rather than slow
+it down, where the environment's motors only lag), and a change of Pick's gripper sign to
 ``gripper_controller/gripper_cmd``; the next step starts when the controllers have finished
 them: in step with the simulation, as in training, however fast the sim runs and however
-loaded the machine is. A Reach episode ends when the TCP is at the ball's top; a Pick episode
-when the ball is held at its goal (15 cm above where it lay); both after the environment's
-episode length at the latest. ``policy/driving`` (std_msgs/Bool, latched) says whether the
-policy is driving the arm.
+loaded the machine is. A step whose arm goal is refused or stops short puts the target back
+where the arm is, so that the next step moves on from there. A Reach episode ends when the
+TCP is at the ball's top; a Pick episode when the ball is held at its goal (15 cm above where
+it lay); both after the environment's episode length at the latest, or earlier when the
+camera has lost the ball (Pick: not held and unseen for ``_LOST_STEPS`` steps; the arm hides
+it for a few steps of every grasp). ``policy/driving`` (std_msgs/Bool, latched) says whether
+the policy is driving the arm.
 """
 
 from __future__ import annotations
@@ -66,15 +71,15 @@ from ur_rg2_learning.envs import (
     CONTROL_RATE,
     LIFT_GOAL,
     LIFT_SUCCESS,
-    MAX_STEP,
     PICK_GOAL_TOLERANCE,
     REACH_TOLERANCE,
     START_TCP,
+    move_target,
     pick_goal,
     pick_observation,
     reach_observation,
     start_joints,
-    target_bounds,
+    step_duration,
     tcp_pose,
 )
 from ur_rg2_learning.scripted import APPROACH_HEIGHT
@@ -82,7 +87,8 @@ from ur_rg2_learning.scripted import APPROACH_HEIGHT
 NODE_NAME = 'ur_rg2_policy'
 _START_SPEED_SCALE = 0.4  # share of the joints' velocity limits for the move to the start
 _START_TIMEOUT = 30.0  # s for the start move beyond its duration
-_STEP_TIMEOUT = 10.0  # s for one step's goal to be answered and done
+_STEP_TIMEOUT = 10.0  # s for one step's goal to be answered and done, beyond its duration
+_LOST_STEPS = 30  # Pick steps (3 s of simulation time) a ball not held may go unseen
 
 # A closed RG2 holds the ball when its fingers stopped this near the ball's diameter (the
 # motion node's grasp check) with the ball this near the TCP.
@@ -213,11 +219,13 @@ class PolicyNode(Node):
             arm = self._kinematics()
             start = np.array(START_TCP)
             start_q = start_joints(arm, start)
-            if self._picks:
-                try:
+            try:
+                if self._picks:
                     plan_pick(arm, start_q, centre, APPROACH_HEIGHT, LIFT_GOAL)
-                except KinematicsError as error:
-                    raise ValueError(f'the ball is out of reach: {error}') from None
+                else:
+                    arm.solve(tcp_pose(centre + (0.0, 0.0, self._radius())), start_q)
+            except KinematicsError as error:
+                raise ValueError(f'the ball is out of reach: {error}') from None
         except (ValueError, KinematicsError) as error:
             response.message = f'refused: {error}'
             self.get_logger().warning(f'policy/run {response.message}')
@@ -226,7 +234,8 @@ class PolicyNode(Node):
                                      _START_SPEED_SCALE, 1.0 / CONTROL_RATE)
         episode = {'target': start, 'joints': start_q, 'step': 0,
                    'previous': None, 'started': time.monotonic(), 'closed': False,
-                   'goal': pick_goal(centre), 'ball': None, 'pending': 0,
+                   'goal': pick_goal(centre), 'ball': None, 'unseen': 0, 'pending': 0,
+                   'held_back': False,
                    'deadline': time.monotonic() + trajectory.duration + _START_TIMEOUT}
         with self._lock:
             self._episode = episode
@@ -272,6 +281,9 @@ class PolicyNode(Node):
         try:
             arm = self._kinematics()
             tcp = arm.tcp_pose(joints)[:3, 3]
+            if episode['held_back']:  # the arm did not go to the last target: on from here
+                episode['target'], episode['joints'] = tcp, joints
+                episode['held_back'] = False
             previous = episode['previous']
             velocity = np.zeros(3) if previous is None else (tcp - previous) * CONTROL_RATE
             episode['previous'] = tcp
@@ -285,21 +297,17 @@ class PolicyNode(Node):
         if observation is None:  # the episode ended
             return
         action = np.clip(self.actor(observation), -1.0, 1.0)
-        low, high = target_bounds(arm)
-        target = np.clip(episode['target'] + MAX_STEP * action[:3], low, high)
-        try:
-            episode['joints'] = arm.solve(tcp_pose(target), episode['joints'])
-            episode['target'] = target
-        except KinematicsError:
-            pass  # as in the environment: the arm holds its target
+        episode['target'], episode['joints'] = move_target(arm, episode['target'],
+                                                           episode['joints'], action)
+        duration = step_duration(joints, episode['joints'], self._velocity_limits)
         episode['step'] += 1
-        episode['deadline'] = time.monotonic() + _STEP_TIMEOUT
+        episode['deadline'] = time.monotonic() + duration + _STEP_TIMEOUT
         closed = self._picks and bool(action[3] < 0.0)
         episode['pending'] = 1 + (closed != episode['closed'])
         if closed != episode['closed']:
             episode['closed'] = closed
             self._send_gripper(0.0 if closed else RG2_MAX_OPENING, episode)
-        self._send([1.0 / CONTROL_RATE], episode['joints'][None]).add_done_callback(
+        self._send([duration], episode['joints'][None]).add_done_callback(
             lambda future: self._on_step_goal(future, episode))
 
     def _reach_observation(self, episode: dict, tcp: np.ndarray,
@@ -332,9 +340,14 @@ class PolicyNode(Node):
         else:
             try:
                 ball = self._ball_centre()
-            except ValueError:
+                episode['unseen'] = 0
+            except ValueError as error:
+                episode['unseen'] += 1
                 if episode['ball'] is None:
                     raise
+                if episode['unseen'] > _LOST_STEPS:
+                    raise ValueError(f'the ball is no longer seen: {episode["unseen"]} steps '
+                                     f'without it ({error})') from None
                 ball = episode['ball']  # hidden by the arm: it lies where it was last seen
             if gripping and np.linalg.norm(ball - tcp) < _HELD_DISTANCE:
                 episode['held_at'] = ball - tcp
@@ -356,10 +369,17 @@ class PolicyNode(Node):
 
     def _on_step_goal(self, future, episode: dict) -> None:
         handle = future.result()
-        if not handle.accepted:  # refused (too fast for a joint): the arm holds, go on
+        if not handle.accepted:  # the arm holds where it is: the next step starts there
+            episode['held_back'] = True
             self._step_done(episode)
             return
-        handle.get_result_async().add_done_callback(lambda _: self._step_done(episode))
+        handle.get_result_async().add_done_callback(
+            lambda done: self._on_step_result(done, episode))
+
+    def _on_step_result(self, future, episode: dict) -> None:
+        if future.result().result.error_code != FollowJointTrajectory.Result.SUCCESSFUL:
+            episode['held_back'] = True  # stopped short (a contact, a preempting command)
+        self._step_done(episode)
 
     def _send_gripper(self, position: float, episode: dict) -> None:
         goal = GripperCommand.Goal()

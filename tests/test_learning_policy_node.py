@@ -67,8 +67,18 @@ def test_policy_run_drives_the_tcp_to_the_ball(ros_graph):
         point.point.x, point.point.y, point.point.z = BALL
         ball.publish(point)
 
+    far = PointStamped()
+    far.header.frame_id = 'world'
+    far.point.x, far.point.y, far.point.z = 1.5, -0.2, RADIUS
+    far_timer = probe.create_timer(0.05, lambda: ball.publish(far))
+    wait_for(lambda: policy._ball is not None, TIMEOUT, 'the far ball to reach the policy node')
+    out = call()
+    assert not out.success
+    assert out.message.startswith('refused: the ball is out of reach'), out.message
+    probe.destroy_timer(far_timer)
     probe.create_timer(0.05, publish_ball)
-    wait_for(lambda: policy._ball is not None, TIMEOUT, 'the ball to reach the policy node')
+    wait_for(lambda: policy._ball[1].point.x == BALL[0], TIMEOUT,
+             'the ball to reach the policy node')
     wait_for(lambda: tree.frames() >= {'world', 'rg2_tcp'}, TIMEOUT, 'the transform tree')
     before = tcp_to_ball_top()
     started = call()
@@ -154,6 +164,75 @@ def test_the_shipped_pick_policy_lifts_balls_the_camera_sees(ros_graph):
         wait_for(lambda: driving and not driving[-1], 3 * TIMEOUT, 'the episode to end')
         lifted.append(held())
     assert sum(lifted) >= PICK_PLACEMENTS - 1, lifted
+
+
+def test_pick_refuses_a_ball_unseen_or_out_of_reach_and_stops_when_it_is_lost(ros_graph,
+                                                                              capfd):
+    """policy/run's reasons, and the outcome line of an episode whose ball vanishes.
+
+    The probe stands in for the vision node: it publishes nothing, then a ball out of reach,
+    then one where the sim has none, which it stops publishing once the episode is under way.
+    Reasons are read from the node's console, as in test_motion_node (not /rosout).
+    """
+    start_sim(ros_graph, camera_rate=0.0, real_time_factor=2.0, ball_position=list(BALL),
+              ball_radius=RADIUS)
+    policy = ros_graph.add(PolicyNode(context=ros_graph.context, parameter_overrides=[
+        Parameter('policy_dir', value='pick')]))
+    probe = ros_graph.node('probe')
+    driving: list[bool] = []
+    probe.create_subscription(Bool, 'policy/driving', lambda m: driving.append(m.data),
+                              LATCHED_QOS)
+    ball = probe.create_publisher(PointStamped, 'ball/position', 10)
+    run = probe.create_client(Trigger, 'policy/run')
+    shown: list[tuple[float, float, float] | None] = [None]
+
+    def publish_ball() -> None:
+        if shown[0] is not None:
+            point = PointStamped()
+            point.header.frame_id = 'world'
+            point.point.x, point.point.y, point.point.z = shown[0]
+            ball.publish(point)
+
+    probe.create_timer(0.05, publish_ball)
+    wait_for(run.service_is_ready, TIMEOUT, 'the policy/run service')
+    wait_for(lambda: policy._gripper.server_is_ready(), TIMEOUT, 'the gripper controller')
+
+    def call() -> Trigger.Response:
+        future = run.call_async(Trigger.Request())
+        wait_for(future.done, TIMEOUT, 'the policy/run answer')
+        return future.result()
+
+    console = ['']
+
+    def said(text: str) -> bool:
+        console[0] += capfd.readouterr().err
+        return text in console[0]
+
+    def ball_seen_at(at) -> bool:
+        seen = policy._ball
+        return seen is not None and np.allclose(
+            (seen[1].point.x, seen[1].point.y, seen[1].point.z), at)
+
+    refused = call()
+    assert not refused.success and refused.message.startswith('refused: no ball seen')
+    wait_for(lambda: said('policy/run refused: no ball seen'), 10.0, 'the refusal logged')
+    far = (1.5, -0.2, RADIUS)
+    shown[0] = far
+    wait_for(lambda: ball_seen_at(far), TIMEOUT, 'the far ball at the policy node')
+    refused = call()
+    assert not refused.success
+    assert refused.message.startswith('refused: the ball is out of reach'), refused.message
+    ghost = (0.4, 0.1, RADIUS)  # the sim's ball lies at BALL
+    shown[0] = ghost
+    wait_for(lambda: ball_seen_at(ghost), TIMEOUT, 'the ball at the policy node')
+    started = call()
+    assert started.success, started.message
+    wait_for(lambda: policy._episode is None or policy._episode['step'] >= 2, 3 * TIMEOUT,
+             'the episode under way')
+    shown[0] = None
+    wait_for(lambda: driving and not driving[-1], 3 * TIMEOUT, 'the episode to end')
+    wait_for(lambda: said('policy episode: stopped: the ball is no longer seen'), 10.0,
+             'the outcome line naming the lost ball')
 
 
 def test_a_directory_without_a_policy_is_refused_at_start(ros_graph, tmp_path):

@@ -103,8 +103,12 @@ def run_node(make_node: Callable[[], N], args: Optional[list[str]], logger_name:
         # right after the terminal's, and that second one must not interrupt it with a
         # KeyboardInterrupt traceback (launch would then report the node as died).
         ignore_stop_signals()
-        executor.shutdown()
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+        try:
+            executor.shutdown()
+            if node is not None:
+                node.destroy_node()
+        finally:
+            # Whatever failed above: a process that exits with its context up leaves DDS's
+            # threads to static destructors, which can abort it.
+            rclpy.try_shutdown()
     return 0

@@ -229,10 +229,15 @@ class SimNode(Node):
 
     def destroy_node(self) -> None:
         """Stop the simulation thread and release pybullet."""
-        self._sim.stop()
-        self._controllers.close()
-        self._world.close()
         logger = self.get_logger()
+        stopped = self._sim.stop()
+        self._controllers.close()
+        if stopped:
+            self._world.close()
+        else:
+            # pybullet is not thread-safe: disconnecting under a running step can abort the
+            # process. The thread is a daemon, so the process still exits.
+            logger.error('the simulation thread did not stop; leaving pybullet connected')
         super().destroy_node()
         # Logged after the node is gone: its rosout publisher may already be dead (a signal
         # shuts the context down first), and this line is for the console anyway.

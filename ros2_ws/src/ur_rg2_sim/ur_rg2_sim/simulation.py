@@ -85,12 +85,17 @@ class SimulationLoop:
         """Start the simulation thread."""
         self._thread.start()
 
-    def stop(self, timeout: float = 2.0) -> None:
-        """Stop the simulation thread and wait for it (up to ``timeout`` seconds)."""
+    def stop(self, timeout: float = 10.0) -> bool:
+        """Stop the simulation thread; return whether it ended within ``timeout`` seconds.
+
+        It ends after the step it is in: a render on a loaded machine can take a good part of
+        a second, so the default leaves room for several.
+        """
         self._stop.set()
         self._wake.set()
         if self._thread.is_alive() and self._thread is not threading.current_thread():
             self._thread.join(timeout)
+        return not self._thread.is_alive()
 
     def summary(self) -> str:
         """Return how much simulation time ran, in how much wall time, and at what speed."""

@@ -15,7 +15,8 @@ So the arm is stopped at the touch, before the load builds up: whenever a link p
 obstacle and the joints' targets would take it further in, steeply, the arm goes back a
 little the way it came and holds there (the targets become those positions). A target that
 moves the link away from the obstacle or along it is never held back, so every command that
-moves away is obeyed. With it go two fixes in the world (ur_rg2_sim.world): joint commands
+moves away is obeyed. A reset whose straight way home is blocked so takes a detour
+(``Homing``). With it go two fixes in the world (ur_rg2_sim.world): joint commands
 and reset move the joints together (``SimWorld.move_arm``), and a finger at its target counts
 as stopped, however the solver jitters its speed (``SimWorld.gripper_stopped``).
 """
@@ -139,17 +140,18 @@ class Homing:
 
     def step(self, world: SimWorld) -> None:
         """Send the next joint home when the one going home is there or was stopped."""
-        if self._home is None or not self._detour:
+        if self._home is None:
             return
         positions = dict(zip(ARM_JOINTS, world.joint_states().positions))
         errors = {name: abs(positions[name] - self._home[name]) for name in HOMING_ORDER}
         away = [name for name in HOMING_ORDER if errors[name] > HOME_TOLERANCE]
-        if self._joint in away:
-            return
         if not away:
-            # The last few mrad together (a stop's hold may have left some joints short).
-            world.move_arm(self._home)
+            if self._detour:
+                # The last few mrad together (a stop's hold may have left some joints short).
+                world.move_arm(self._home)
             self._home = None
+            return
+        if not self._detour or self._joint in away:
             return
         distance = sum(errors.values())
         if self._round_distance is None:

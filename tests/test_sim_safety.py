@@ -161,8 +161,8 @@ def wedge_walk(rig: Rig, rng: np.random.Generator) -> None:
 
 
 # Walks that end on the floor with reset's straight joint path blocked (the elbow opening
-# presses the wrist or the fingers into the floor): 24 of 420 walks were, 7 still fail
-# (docs/troubleshooting.md).
+# presses the wrist or the fingers into the floor): 24 of 420 walks were. 7 still fail, the
+# upper arm pressed onto the pedestal's edge, which the stop misses (docs/troubleshooting.md).
 @pytest.mark.parametrize('seed', [51, 62, 80, 204])
 def test_reset_takes_a_detour_home_when_its_straight_path_is_blocked(rig, seed):
     wedge_walk(rig, np.random.default_rng(seed))

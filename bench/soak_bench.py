@@ -9,7 +9,9 @@ each node's resident memory; it also measures each ``ball/position``'s age when 
 here (simulation time from ``/clock``, so the camera stamp to here).
 
 Rows: each node's RSS growth from the first to the last minute after the warm-up (a leak
-shows as growth that goes on; the target is 2 MB), the frame latency in those two minutes
+shows as growth that goes on; the target is 2 MB), and of its private part (RssAnon: RSS less
+mapped files and shared memory, whose pages of the DDS segments read from count as they are
+first touched, up to 16 MiB a segment), the frame latency in those two minutes
 (flat when nothing piles up), and what the user did. ``SOAK_SECONDS`` (default 600) sets the
 length, for a quick try. Run alone: ``python -m bench soak``.
 """
@@ -34,7 +36,14 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
 from bench.motion_bench import ball_placement
-from bench.processes import call_service, node_process, percentile, rss_mb, spun_node
+from bench.processes import (
+    call_service,
+    node_process,
+    percentile,
+    private_rss_mb,
+    rss_mb,
+    spun_node,
+)
 from bench.viewer_bench import _free_port
 
 DOMAIN_ID = 217
@@ -159,6 +168,7 @@ def run() -> list[tuple[str, str, str]]:
     port = _free_port()
     rng = np.random.default_rng(SEED)
     rss: dict[str, list[tuple[float, float]]] = {name: [] for name in NODES}
+    private: dict[str, list[tuple[float, float]]] = {name: [] for name in NODES}
     with tempfile.TemporaryDirectory(prefix='soak-bench-') as frames, ExitStack() as stack:
         processes = {
             'sim': stack.enter_context(node_process('sim', {}, DOMAIN_ID, ready='simulating',
@@ -181,7 +191,9 @@ def run() -> list[tuple[str, str, str]]:
             while not finished.wait(SAMPLE_S):
                 for name, process in processes.items():
                     if process.poll() is None:
-                        rss[name].append((time.monotonic() - started, rss_mb(process.pid)))
+                        now = time.monotonic() - started
+                        rss[name].append((now, rss_mb(process.pid)))
+                        private[name].append((now, private_rss_mb(process.pid)))
                 print(f'soak: {time.monotonic() - started:.0f} of {SOAK_S:.0f} s: ' + ', '.join(
                     f'{name} {samples[-1][1]:.1f} MB' for name, samples in rss.items()
                     if samples) + f'; {user.tally}', file=sys.stderr, flush=True)
@@ -199,6 +211,8 @@ def run() -> list[tuple[str, str, str]]:
         with user.lock:
             ages = list(user.ages)
     growth = {name: _growth(samples, WARMUP_S, run_s) for name, samples in rss.items()}
+    private_growth = {name: _growth(samples, WARMUP_S, run_s)
+                      for name, samples in private.items()}
     first = [ms for t, ms in ages if WARMUP_S <= t - started < WARMUP_S + WINDOW_S]
     last = [ms for t, ms in ages if run_s - WINDOW_S <= t - started]
     tally = user.tally
@@ -206,6 +220,9 @@ def run() -> list[tuple[str, str, str]]:
         (f'soak: RSS growth after warm-up, MB ({" / ".join(NODES)})',
          ' / '.join(f'{growth[name]:+.1f}' for name in NODES)
          + f' ({run_s / 60:.0f} min, first vs last {WINDOW_S:.0f} s after {WARMUP_S:.0f} s)',
+         f'<= {RSS_TARGET_MB:g} MB each'),
+        (f'soak: of that, private (RssAnon), MB ({" / ".join(NODES)})',
+         ' / '.join(f'{private_growth[name]:+.1f}' for name in NODES),
          f'<= {RSS_TARGET_MB:g} MB each'),
         ('soak: camera stamp -> ball/position here, ms p50 / p95, first vs last window',
          f'{percentile(first, 50):.0f} / {percentile(first, 95):.0f} vs '

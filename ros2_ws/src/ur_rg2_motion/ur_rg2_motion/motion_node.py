@@ -74,6 +74,8 @@ _MIN_MOVE_DURATION = 0.2  # s
 _REST_SPEED = 0.02
 _REST_TIMEOUT = 10.0  # s
 _STAYED_TOLERANCE = 0.02  # rad: the arm held at the ball sags less than this as it grips
+# How often a pick waiting on a controller looks whether the vision node is still there, s.
+_VISION_CHECK_PERIOD = 0.05
 # The pick's straight moves must not take more than this share of the joint speed limits.
 _PICK_SPEED_SCALE = 0.7
 
@@ -132,6 +134,8 @@ class MotionNode(Node):
         self._send_lock = threading.Lock()
         self._pick_running = False
         self._pick_cancel: str | None = None
+        # Whether the running pick still goes by vision's reading of the ball (until it grips).
+        self._pick_needs_vision = False
 
         self.create_subscription(String, 'robot_description', self._on_description, LATCHED_QOS)
         self.create_subscription(TFMessage, '/tf_static', self._tf.add_message, LATCHED_QOS)
@@ -336,6 +340,7 @@ class MotionNode(Node):
             response.message = f'{where}{error} (after {time.monotonic() - started:.1f} s)'
             self.get_logger().warning(f'pick_ball failed: {response.message}')
         finally:
+            self._pick_needs_vision = False
             with self._lock:
                 self._pick_running = False
         self._result_pub.publish(String(
@@ -352,6 +357,7 @@ class MotionNode(Node):
 
     def _pick(self, ball: np.ndarray) -> float:
         """Pick the ball at ``ball`` (base_link); return the opening it is held at."""
+        self._pick_needs_vision = True
         arm = self._kinematics()
         self._wait_for_rest()
         joints = self._current_joints()
@@ -376,6 +382,7 @@ class MotionNode(Node):
         at_ball = self._current_joints()
         closing = self._start_gripper(0.0)
         result = self._finish_gripper(closing, 'closing the gripper')
+        self._pick_needs_vision = False  # the ball is in the hand or missed: no reading counts
         self._check_arm_stayed(at_ball, 'closing the gripper')
         missed = grasp_check(result.position, result.stalled, plan.radius,
                              self.get_parameter('grasp_tolerance').value)
@@ -396,6 +403,7 @@ class MotionNode(Node):
         deadline = time.monotonic() + _REST_TIMEOUT
         while True:
             self._check_cancel()
+            self._check_vision()
             with self._lock:
                 speed = self._speed
             if speed < _REST_SPEED:
@@ -425,6 +433,17 @@ class MotionNode(Node):
             plan_move(arm, joints, pose, self._velocity_limits, scale, _MIN_MOVE_DURATION),
             arm, joints, speed)
         self._run_trajectory(trajectory, what)
+
+    def _check_vision(self) -> None:
+        """Give up the pick when nothing publishes ``ball/position`` any more: vision is gone.
+
+        The pick goes where vision last saw the ball; without vision it would go on blind, and
+        the user would not learn that the graph has lost its eyes. A vision node that exits
+        leaves the graph at once; one killed outright (SIGKILL) only when DDS's lease runs out.
+        """
+        if self._pick_needs_vision and self.count_publishers('ball/position') == 0:
+            raise PickError('vision lost: nothing publishes ball/position any more (is the '
+                            'vision node running?); the pick stopped and the arm holds')
 
     def _check_cancel(self) -> None:
         with self._lock:
@@ -466,14 +485,36 @@ class MotionNode(Node):
         return response.result
 
     def _wait(self, future, timeout: float, what: str, handle=None):
-        """Wait for an action future (completed by other executor threads); return its result."""
+        """Wait for an action future (completed by other executor threads); return its result.
+
+        Given up (its goal cancelled: the arm or the RG2 holds) after ``timeout`` s or when
+        vision is lost meanwhile. ``handle``: the goal's, when ``future`` is its result.
+        """
         done = threading.Event()
         future.add_done_callback(lambda _: done.set())
-        if not done.wait(timeout):
-            if handle is not None:
-                handle.cancel_goal_async()
-            raise PickError(f'{what}: no answer from the controller within {timeout:.0f} s')
+        deadline = time.monotonic() + timeout
+        while not done.wait(max(0.0, min(_VISION_CHECK_PERIOD, deadline - time.monotonic()))):
+            try:
+                if time.monotonic() >= deadline:
+                    raise PickError(f'{what}: no answer from the controller within '
+                                    f'{timeout:.0f} s')
+                self._check_vision()
+            except PickError:
+                _cancel_goal(future, handle)
+                raise
         return future.result()
+
+
+def _cancel_goal(future, handle) -> None:
+    """Cancel the goal of ``handle``, or else the goal ``future`` answers once it is accepted."""
+    if handle is not None:
+        handle.cancel_goal_async()
+        return
+
+    def cancel(answered) -> None:
+        if answered.result().accepted:
+            answered.result().cancel_goal_async()
+    future.add_done_callback(cancel)
 
 
 # -- messages ------------------------------------------------------------------------------------

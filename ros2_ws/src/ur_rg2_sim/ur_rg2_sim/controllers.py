@@ -107,6 +107,11 @@ class Controllers:
         """Preempt a running trajectory: ``source`` commands the arm (simulation thread)."""
         self._arm.preempt(f'preempted by {source}')
 
+    @property
+    def arm_running(self) -> bool:
+        """Whether a trajectory drives the arm (simulation thread)."""
+        return self._arm.active is not None
+
     def arm_blocked(self, reason: str) -> None:
         """Abort a running trajectory whose path is blocked, the reason logged (sim thread)."""
         self._arm.preempt(reason, PATH_TOLERANCE_VIOLATED, logged=True)

@@ -15,12 +15,13 @@ So the arm is stopped at the touch, before the load builds up: whenever a link p
 obstacle and the joints' targets would take it further in, steeply, the arm goes back a
 little the way it came and holds there (the targets become those positions). A target that
 moves the link away from the obstacle or along it is never held back, so every command that
-moves away is obeyed. With it go two fixes in the world (ur_rg2_sim.world): joint commands
+moves away is obeyed. A reset whose straight way home is blocked so takes a detour
+(``Homing``). With it go two fixes in the world (ur_rg2_sim.world): joint commands
 and reset move the joints together (``SimWorld.move_arm``), and a finger at its target counts
 as stopped, however the solver jitters its speed (``SimWorld.gripper_stopped``).
 """
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Optional
 
@@ -48,6 +49,13 @@ BACK_OFF = 0.01
 # driving into it (m): below, the few tenths of a mm that a held arm is pushed about by a
 # contact, and a trajectory starting from there, would count.
 APPROACH_TOLERANCE = 1e-3
+# Reset's detour when its straight path is blocked: one joint after another, the upper arm
+# first, so that each move lifts the arm off what it touched rather than sweeping it along.
+HOMING_ORDER = ('shoulder_lift_joint', 'elbow_joint', 'wrist_1_joint', 'wrist_2_joint',
+                'wrist_3_joint', 'shoulder_pan_joint')
+# rad: on the detour a joint this near home is home enough for the next one to go (at the end
+# all of them go the rest of the way together).
+HOME_TOLERANCE = 0.01
 
 
 @dataclass
@@ -89,6 +97,74 @@ class ProtectiveStop:
         self._last_stop_ns[pair] = now_ns
         self.on_stop(stop, held, last is None or now_ns - last > REWARN_AFTER * NS)
         return stop
+
+class Homing:
+    """Reset's way home: straight in joint space, or joint by joint when that is blocked.
+
+    ``start`` sends every joint home together (SimWorld.move_arm). From some poses on the
+    floor that straight path is blocked: the elbow opening presses the wrist into the floor
+    faster than the shoulder lifts it, and the protective stop holds the arm at once. After
+    such a stop (``blocked``) the joints go home one at a time in HOMING_ORDER; a joint that
+    is stopped in its turn is tried again after the others, round after round, until every
+    joint is home or a round brought the arm no nearer (then it holds where it is). Any
+    other command of the arm ends it (``cancel``). Runs on the simulation thread: ``step``
+    before every physics step, before the protective stop judges the targets.
+    """
+
+    def __init__(self) -> None:
+        self._home: Optional[dict[str, float]] = None
+        self._detour = False
+        self._joint: Optional[str] = None  # the joint going home on the detour
+        self._stopped: set[str] = set()  # joints stopped in this round of the detour
+        # The joints' summed distance from home when the round began, rad.
+        self._round_distance: Optional[float] = None
+
+    def start(self, world: SimWorld, home: Mapping[str, float]) -> dict[str, float]:
+        """Send the arm home, all joints together; return the targets set."""
+        applied = world.move_arm(home)
+        self._home = dict(applied)
+        self._detour, self._joint, self._stopped, self._round_distance = False, None, set(), None
+        return applied
+
+    def cancel(self) -> None:
+        """Give the arm up to another command."""
+        self._home = None
+
+    def blocked(self) -> None:
+        """Hear of a protective stop: the way home, or the joint going home, is blocked."""
+        if self._home is None:
+            return
+        if self._joint is not None:
+            self._stopped.add(self._joint)
+        self._detour, self._joint = True, None
+
+    def step(self, world: SimWorld) -> None:
+        """Send the next joint home when the one going home is there or was stopped."""
+        if self._home is None:
+            return
+        positions = dict(zip(ARM_JOINTS, world.joint_states().positions))
+        errors = {name: abs(positions[name] - self._home[name]) for name in HOMING_ORDER}
+        away = [name for name in HOMING_ORDER if errors[name] > HOME_TOLERANCE]
+        if not away:
+            if self._detour:
+                # The last few mrad together (a stop's hold may have left some joints short).
+                world.move_arm(self._home)
+            self._home = None
+            return
+        if not self._detour or self._joint in away:
+            return
+        distance = sum(errors.values())
+        if self._round_distance is None:
+            self._round_distance = distance
+        waiting = [name for name in away if name not in self._stopped]
+        if not waiting:  # the round is over
+            if distance >= self._round_distance:
+                self._home = None  # no nearer: hold where it is
+                return
+            self._stopped, self._round_distance, waiting = set(), distance, away
+        self._joint = waiting[0]
+        world.move_arm({self._joint: self._home[self._joint]})
+
 
 def describe(contact: Contact) -> str:
     """Return what touched what, for a person: 'wrist_1_link touched the floor'."""

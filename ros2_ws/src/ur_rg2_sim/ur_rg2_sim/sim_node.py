@@ -32,7 +32,7 @@ from ur_rg2_sim.controllers import Controllers
 from ur_rg2_sim.frame_publisher import FramePublisher
 from ur_rg2_sim.frames import OPTICAL_FRAME, load_frame_tree, robot_description
 from ur_rg2_sim.robot_model import ROBOT_MODELS, RobotModelError
-from ur_rg2_sim.safety import ProtectiveStop, describe
+from ur_rg2_sim.safety import Homing, ProtectiveStop, describe
 from ur_rg2_sim.serialized import SerializedMessage
 from ur_rg2_sim.simulation import NS, Schedule, SimulationLoop
 from ur_rg2_sim.world import (
@@ -219,7 +219,11 @@ class SimNode(Node):
 
         self._sim = SimulationLoop(self._world, self, s.schedule(), self._make_camera(s))
         self._controllers = Controllers(self, self._sim)
-        # After the controllers: it judges the targets they have just set.
+        # Reset's way home; a trajectory started since ends it (the others end it in
+        # _command_arm).
+        self._homing = Homing()
+        self._sim.step_hooks.append(self._step_homing)
+        # After the controllers and homing: it judges the targets they have just set.
         self._sim.step_hooks.append(ProtectiveStop(self._on_protective_stop).step)
         self._sim.start()
         self.get_logger().info(
@@ -300,11 +304,19 @@ class SimNode(Node):
         """Run ``apply(world)`` on the simulation thread, preempting a running trajectory."""
         def command(world: SimWorld):
             self._controllers.arm_commanded(source)
+            self._homing.cancel()
             return apply(world)
         return self._sim.call(command)
 
+    def _step_homing(self, world: SimWorld, _now_ns: int) -> None:
+        if self._controllers.arm_running:
+            self._homing.cancel()
+        else:
+            self._homing.step(world)
+
     def _on_protective_stop(self, contact: Contact, held: dict[str, float], new: bool) -> None:
-        """Report a stop: abort the running trajectory, warn once (simulation thread)."""
+        """Report a stop: abort the running trajectory, tell homing, warn once (sim thread)."""
+        self._homing.blocked()
         message = (f'protective stop: {describe(contact)} ({contact.force:.0f} N); the arm '
                    f'holds at {degrees_list(held.values())} deg. Commands that move it away '
                    '(reset, a jog or trajectory back) are obeyed')
@@ -347,7 +359,7 @@ class SimNode(Node):
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         home = dict(zip(ARM_JOINTS, self.settings.home_position))
         applied = self._sim_result(
-            self._command_arm('reset', lambda world: world.move_arm(home)))
+            self._command_arm('reset', lambda world: self._homing.start(world, home)))
         if isinstance(applied, str):
             response.success, response.message = False, applied
             return response

@@ -23,6 +23,14 @@ from ur_rg2_learning.envs import REACH_TOLERANCE
 from ur_rg2_learning.policy_node import PolicyNode
 
 TIMEOUT = 60.0  # s of wall time on a loaded 2-core machine
+
+
+def call(client) -> Trigger.Response:
+    """Call the Trigger service of ``client`` (once it is there) and return its answer."""
+    wait_for(client.service_is_ready, TIMEOUT, f'the {client.srv_name} service')
+    future = client.call_async(Trigger.Request())
+    wait_for(future.done, TIMEOUT, f'the {client.srv_name} answer')
+    return future.result()
 BALL = (0.45, -0.25, 0.03)  # world, on the floor
 RADIUS = 0.03
 
@@ -48,12 +56,7 @@ def test_policy_run_drives_the_tcp_to_the_ball(ros_graph):
     wait_for(run.service_is_ready, TIMEOUT, 'the policy/run service')
     wait_for(lambda: policy._trajectory.server_is_ready(), TIMEOUT, 'the trajectory controller')
 
-    def call() -> Trigger.Response:
-        future = run.call_async(Trigger.Request())
-        wait_for(future.done, TIMEOUT, 'the policy/run answer')
-        return future.result()
-
-    refused = call()  # no ball seen yet
+    refused = call(run)  # no ball seen yet
     assert not refused.success
     assert refused.message.startswith('refused: no ball seen')
 
@@ -72,7 +75,7 @@ def test_policy_run_drives_the_tcp_to_the_ball(ros_graph):
     far.point.x, far.point.y, far.point.z = 1.5, -0.2, RADIUS
     far_timer = probe.create_timer(0.05, lambda: ball.publish(far))
     wait_for(lambda: policy._ball is not None, TIMEOUT, 'the far ball to reach the policy node')
-    out = call()
+    out = call(run)
     assert not out.success
     assert out.message.startswith('refused: the ball is out of reach'), out.message
     probe.destroy_timer(far_timer)
@@ -81,10 +84,10 @@ def test_policy_run_drives_the_tcp_to_the_ball(ros_graph):
              'the ball to reach the policy node')
     wait_for(lambda: tree.frames() >= {'world', 'rg2_tcp'}, TIMEOUT, 'the transform tree')
     before = tcp_to_ball_top()
-    started = call()
+    started = call(run)
     assert started.success, started.message
     assert started.message.startswith('episode started')
-    busy = call()
+    busy = call(run)
     assert not busy.success and 'already running' in busy.message
     wait_for(lambda: driving and driving[-1], TIMEOUT, 'policy/driving true')
     wait_for(lambda: not driving[-1], 3 * TIMEOUT, 'the episode to end')
@@ -122,12 +125,6 @@ def test_the_shipped_pick_policy_lifts_balls_the_camera_sees(ros_graph):
     reset = probe.create_client(Trigger, 'reset')
     opener = probe.create_client(Trigger, 'gripper/open')
     wait_for(lambda: policy._gripper.server_is_ready(), TIMEOUT, 'the gripper controller')
-
-    def call(client) -> Trigger.Response:
-        wait_for(client.service_is_ready, TIMEOUT, 'a service')
-        future = client.call_async(Trigger.Request())
-        wait_for(future.done, TIMEOUT, 'a service answer')
-        return future.result()
 
     def held_now() -> bool:
         ball = truth[-1].pose.position
@@ -197,11 +194,6 @@ def test_pick_refuses_a_ball_unseen_or_out_of_reach_and_stops_when_it_is_lost(ro
     wait_for(run.service_is_ready, TIMEOUT, 'the policy/run service')
     wait_for(lambda: policy._gripper.server_is_ready(), TIMEOUT, 'the gripper controller')
 
-    def call() -> Trigger.Response:
-        future = run.call_async(Trigger.Request())
-        wait_for(future.done, TIMEOUT, 'the policy/run answer')
-        return future.result()
-
     console = ['']
 
     def said(text: str) -> bool:
@@ -213,19 +205,19 @@ def test_pick_refuses_a_ball_unseen_or_out_of_reach_and_stops_when_it_is_lost(ro
         return seen is not None and np.allclose(
             (seen[1].point.x, seen[1].point.y, seen[1].point.z), at)
 
-    refused = call()
+    refused = call(run)
     assert not refused.success and refused.message.startswith('refused: no ball seen')
     wait_for(lambda: said('policy/run refused: no ball seen'), 10.0, 'the refusal logged')
     far = (1.5, -0.2, RADIUS)
     shown[0] = far
     wait_for(lambda: ball_seen_at(far), TIMEOUT, 'the far ball at the policy node')
-    refused = call()
+    refused = call(run)
     assert not refused.success
     assert refused.message.startswith('refused: the ball is out of reach'), refused.message
     ghost = (0.4, 0.1, RADIUS)  # the sim's ball lies at BALL
     shown[0] = ghost
     wait_for(lambda: ball_seen_at(ghost), TIMEOUT, 'the ball at the policy node')
-    started = call()
+    started = call(run)
     assert started.success, started.message
     wait_for(lambda: policy._episode is None or policy._episode['step'] >= 2, 3 * TIMEOUT,
              'the episode under way')

@@ -11,13 +11,14 @@ in with a ``detector.json`` beside it. ONNX Runtime (MIT; imported only when a m
 runs it on the CPU on one thread: the shipped network's forward pass took 5.7 ms median, 7.5 ms
 p95, against OpenCV DNN's 8.9 / 14.5 ms (one thread each, 256x320, load 5).
 
-Each box gives two candidates, tried in turn by :func:`ur_rg2_vision.localize.locate_first`:
-the ball's outline found in and around the box by the ball's own colour (the median hue of
-the box's middle) with the colour detector's circle fit, sharper than the model's box; and the
-box itself as a :class:`~ur_rg2_vision.detector.Detection` like the colour detector's: the
-sphere whose outline has this box (off the optical axis an ellipse, see
-:func:`ur_rg2_vision.dataset.sphere_box`) gives the image of its centre and its radius as seen on
-the axis; its pixels are the disc inside the box, and :mod:`ur_rg2_vision.localize` fits the
+Each box gives two candidates, tried by :func:`ur_rg2_vision.localize.locate_first` (all
+boxes' outlines first, then the boxes): the ball's outline found in and around the box by the
+ball's own colour (the median hue of the box's middle) with the colour detector's circle fit,
+sharper than the model's box; and the box itself as a
+:class:`~ur_rg2_vision.detector.Detection` like the colour detector's: the sphere whose outline
+has this box (off the optical axis an ellipse, see :func:`ur_rg2_vision.dataset.sphere_box`)
+gives the image of its centre and its radius as seen on the axis; its pixels are the disc
+inside the box, and :mod:`ur_rg2_vision.localize` fits the
 sphere to their depth (a flat disc or a cube the model took for a ball fails there).
 """
 
@@ -159,14 +160,15 @@ class LearnedBallDetector:
         """
         if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
             raise ValueError(f'expected an RGB uint8 image, got {rgb.dtype} {rgb.shape}')
-        detections = []
-        for box in self.model.boxes(rgb):
-            # The outline in the ball's own colour first: sharper than the model's box.
-            for detection in (_colour_outline(rgb, k, box, self.min_radius_px),
-                              box_detection(box, rgb.shape[1], rgb.shape[0], k)):
-                if detection is not None and detection.radius >= self.min_radius_px:
-                    detections.append(detection)
-        return detections
+        boxes = self.model.boxes(rgb)
+        # The outlines found by a ball's own colour first, of every box: sharper than a box,
+        # and a round outline of one colour is more evidence of a ball than a box alone (a
+        # confident box on a rounded part of the robot cut off by the image border must not
+        # come before the ball's outline in a less confident one).
+        outlines = [_colour_outline(rgb, k, box, self.min_radius_px) for box in boxes]
+        shapes = [box_detection(box, rgb.shape[1], rgb.shape[0], k) for box in boxes]
+        return [detection for detection in (*outlines, *shapes)
+                if detection is not None and detection.radius >= self.min_radius_px]
 
 
 def _colour_outline(rgb: np.ndarray, k: np.ndarray | None,

@@ -55,7 +55,6 @@ ARRIVED_M = 0.005  # the ball is this near where it was put (it may settle, neve
 HIDDEN_MAX = 0.02  # more of the ball hidden than this: the placement is drawn again
 EMPTY_MAX = 0.2  # more of the ball missing from the frame than this: wait for another frame
 REDRAWS = 20  # placements drawn per sample before giving up
-REST_S = 4.0  # a ball not at rest where it was put by then was pushed away: drawn again
 STALE_FRAMES = 5  # frames that miss the ball before giving up
 
 
@@ -124,8 +123,7 @@ class SimDriver(Node):
     def spin_until(self, predicate: Callable[[], object], what: str,
                    timeout: float | None = None) -> object:
         """Spin until ``predicate`` returns a truthy value; SimError after the timeout."""
-        started = time.monotonic()
-        deadline = started + (self.timeout if timeout is None else timeout)
+        deadline = time.monotonic() + (self.timeout if timeout is None else timeout)
         while True:
             if self.stop_signal is not None:
                 raise InterruptError(self.stop_signal)
@@ -133,7 +131,7 @@ class SimDriver(Node):
             if value:
                 return value
             if time.monotonic() > deadline:
-                raise SimError(f'timed out after {deadline - started:g} s waiting for {what}')
+                raise SimError(f'timed out after {self.timeout:g} s waiting for {what}')
             self._executor.spin_once(timeout_sec=0.02)
 
     def _call(self, client, request, what: str):
@@ -255,8 +253,8 @@ class Sampler:
                     self.empty += 1
                 return result
             self.redrawn += 1
-        raise SimError(f'sample {index}: the ball was hidden (by the robot?) or pushed away in '
-                       f'{REDRAWS} placements in a row')
+        raise SimError(f'sample {index}: the ball was hidden (by the robot?) in {REDRAWS} '
+                       f'placements in a row')
 
     def _shoot(self, placement: Placement) -> tuple[np.ndarray, tuple | None] | None:
         d = self.driver
@@ -284,13 +282,9 @@ class Sampler:
             after = d.spin_until(lambda: self._camera_moved(*placement.camera),
                                  'the new camera pose on /tf_static')[0]
         for _ in range(STALE_FRAMES):
-            try:
-                position, rest_stamp = d.spin_until(lambda: d.resting_pose(placement.ball),
-                                                    'the ball to rest where it was put '
-                                                    '(ball/true_pose)',
-                                                    min(REST_S, d.timeout))
-            except SimError:
-                return None  # pushed away (by a distractor it landed against): draw again
+            position, rest_stamp = d.spin_until(lambda: d.resting_pose(placement.ball),
+                                                'the ball to rest where it was put '
+                                                '(ball/true_pose)')
             since = max(rest_stamp, after)
             color, info, depth = d.spin_until(lambda t=since: d.frame_after(t),
                                               'a camera frame after the ball came to rest')
@@ -450,8 +444,7 @@ def run(args: argparse.Namespace, driver: SimDriver) -> int:
     elapsed = time.monotonic() - started
     print(f'dataset: wrote {written} samples to {writer.root} in {elapsed:.1f} s '
           f'({written / elapsed:.2f} samples/s; {sampler.empty} without the ball in view, '
-          f'{sampler.redrawn} placements drawn again because the ball was hidden or pushed '
-          f'away); '
+          f'{sampler.redrawn} placements drawn again because the ball was hidden); '
           f'{before + written} in the data set', file=sys.stderr)
     return 0
 

@@ -6,7 +6,8 @@
    any colour and 1.5-8 cm radius. Each detector does the vision node's per-frame work (find,
    then confirm and locate with the depth) with OpenCV on one thread: balls found (of those
    at least 40% visible), false balls (a position where there is no ball, or more than a
-   radius off it), 3D error, time per frame.
+   radius off it), 3D error, time per frame (with the load average before and after: the
+   machine is shared).
 2. The shipped model: its training time and size (from its detector.json), its validation
    numbers as train_detector measured them.
 3. Pipeline with ``detector:=learned``: colour stamp -> ``ball/position`` in another process,
@@ -69,12 +70,15 @@ def run() -> list[tuple[str, str, str]]:
     """Measure both detectors; return benchmark rows (metric, measured, target)."""
     from ur_rg2_vision.learned import MODEL_FILE, SETTINGS_FILE, SHIPPED_MODEL
 
+    load_before = os.getloadavg()[0]
     results = _hard_set()
+    load_hard = os.getloadavg()[0]
     settings = json.loads((SHIPPED_MODEL / SETTINGS_FILE).read_text())
     training, validation = settings['training'], settings['validation']
     size = os.path.getsize(SHIPPED_MODEL / MODEL_FILE) / 1e6
     _, default = _render_frames()
     pipeline = _pipeline(default, {'detector': 'learned'})
+    load_pipeline = os.getloadavg()[0]
     rows = []
     hard = f'hard set ({HARD_FRAMES} frames, seed {SEED})'
     for name, target_recall, target_error, target_time in (
@@ -91,14 +95,15 @@ def run() -> list[tuple[str, str, str]]:
              f'{percentile(r["errors"], 50):.2f} / {percentile(r["errors"], 95):.2f}',
              target_error),
             (f'detector {name}: detection + 3D per 640x480 frame, one thread, ms p50 / p95',
-             f'{percentile(r["times"], 50):.1f} / {percentile(r["times"], 95):.1f}',
-             target_time),
+             f'{percentile(r["times"], 50):.1f} / {percentile(r["times"], 95):.1f} (load '
+             f'{load_before:.1f}-{load_hard:.1f})', target_time),
         ]
     rows += [
         ('detector learned: colour stamp -> ball/position in another process, ms p50 / p95',
-         f'{pipeline["p50"]:.1f} / {pipeline["p95"]:.1f}', 'p95 <= 33 ms'),
+         f'{pipeline["p50"]:.1f} / {pipeline["p95"]:.1f} (load {load_pipeline:.1f})',
+         'p95 <= 33 ms'),
         ('detector learned: frames processed, fed at 30 Hz (ball/position)',
-         f'{pipeline["positions"]} of {pipeline["sent"]}', 'all'),
+         f'{pipeline["positions"]} of {pipeline["sent"]} (load {load_pipeline:.1f})', 'all'),
         ('detector learned: shipped model, training time (train_detector, this machine)',
          f'{training["seconds"] / 60:.1f} min ({training["epochs"]} epochs, imgsz '
          f'{training["imgsz"]})', '<= 60 min'),

@@ -140,6 +140,26 @@ def test_jitter_moves_the_camera_and_paints_the_ball():
     assert len({p.color for p in placements}) == 50
 
 
+def test_any_camera_looks_at_the_reach_from_any_side():
+    placements = [plan(i, any_camera=True) for i in range(100)]
+    assert placements == [plan(i, any_camera=True) for i in range(100)]
+    bearings = []
+    for p in placements:
+        position, look_at = p.camera
+        assert math.hypot(*position[:2]) >= 0.7  # clear of the arm
+        assert look_at[2] == 0.0 and 0.3 <= math.hypot(*look_at[:2]) <= 0.9
+        offset = np.subtract(position, look_at)
+        assert 0.6 - 1e-9 <= np.linalg.norm(offset) <= 2.2 + 1e-9
+        down = math.degrees(math.asin(offset[2] / np.linalg.norm(offset)))
+        assert 25 - 1e-6 <= down <= 65 + 1e-6
+        bearings.append(math.atan2(offset[1], offset[0]))
+        center = Camera(position, look_at, K, 640, 480).to_optical(p.ball)
+        label = yolo_label(sphere_box(center, 0.03, K), 640, 480) if center[2] > 0.03 else None
+        assert (label is not None) == p.in_view
+    # From every side: each quadrant of bearings holds some poses.
+    assert len({int((b + math.pi) // (math.pi / 2)) for b in bearings}) == 4
+
+
 def test_out_of_view_behind_the_camera_when_it_sees_all_the_reach():
     above = Camera((0.0, -3.0, 4.0), (0.0, 0.0, 0.0), K, 640, 480)
     p = plan(0, camera=above, out_of_view_fraction=1.0, tries=50)

@@ -1,6 +1,6 @@
 """``evaluate_detector``: recall, precision and mAP50 of a ball detector on a ``dataset`` split.
 
-Runs the exported ONNX model as the ``vision`` node does (OpenCV's DNN module, no torch), or
+Runs the exported ONNX model as the ``vision`` node does (ONNX Runtime, no torch), or
 with ``--detector color`` the colour detector, on the validation images of a data set (its
 ``data.yaml``; ``--split train`` for the others). A detection is right when its box overlaps
 a labelled ball's box by IoU >= 0.5; every image holds at most one ball.

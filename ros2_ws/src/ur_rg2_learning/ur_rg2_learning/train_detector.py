@@ -5,7 +5,8 @@ scratch on the CPU, on the data set's ``data.yaml``, with ultralytics' progress 
 ``--out``: ``model.onnx`` (ultralytics' ONNX export, 1 x 5 x N, for 640x480 frames letterboxed
 to ``--imgsz`` wide), ``detector.json`` (input size, class names, thresholds, the validation
 metrics of the exported model as ``vision`` runs it, the training's settings and time),
-``results.csv`` (ultralytics' per-epoch losses and metrics) and ``training_curve.png``. Needs
+``results.csv`` (ultralytics' per-epoch losses and metrics) and ``training_curve.png``; the
+machine's load average is recorded beside the time (the machine may be shared). Needs
 the learning set-up (``scripts/bootstrap requirements-learning.txt``).
 """
 
@@ -35,6 +36,20 @@ CONFIDENCE = 0.1
 IOU = 0.5  # non-maximum suppression
 FRAME_ASPECT = 480 / 640  # the camera's frames: the export's input fits them
 STRIDE = 32  # YOLOv8's largest stride: input sides are multiples of it
+HUE_SHIFT = 0.5  # Ultralytics' hsv_h: a fraction of the hue circle (its default 0.015)
+# Of Ultralytics' default 3: a run within an hour on two cores has about a dozen epochs.
+WARMUP_EPOCHS = 1.0
+CLOSE_MOSAIC_SHARE = 0.15  # the last epochs train on whole frames, as vision sees them
+
+
+def _size_close_mosaic(trainer) -> None:
+    """Keep the epochs without mosaic a share of the run, also when a time budget sets it.
+
+    With ``--hours`` Ultralytics re-estimates the number of epochs after the first one; a
+    ``close_mosaic`` fixed from ``--epochs`` could then exceed the run and switch mosaic off
+    from the start.
+    """
+    trainer.args.close_mosaic = max(1, round(CLOSE_MOSAIC_SHARE * trainer.epochs))
 
 
 def _torchvision_beside_cpu_torch() -> None:
@@ -130,16 +145,22 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_num_threads(args.threads)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    load_start = os.getloadavg()[0]
     started = time.monotonic()
     try:
         model = YOLO(str(NETWORK), task='detect')
+        model.add_callback('on_train_epoch_start', _size_close_mosaic)
         model.train(data=str(data_yaml.resolve()), epochs=args.epochs, imgsz=args.imgsz,
                     batch=args.batch, seed=args.seed, deterministic=True, device='cpu',
                     workers=0, amp=False, plots=False, project=str(scratch), name='train',
                     exist_ok=True, verbose=False, patience=args.epochs,
                     close_mosaic=max(1, args.epochs // 5), time=args.hours or None,
+                    # A ball is a ball in any colour: hue shifted by up to half the circle.
+                    hsv_h=HUE_SHIFT, warmup_epochs=WARMUP_EPOCHS,
                     cache='ram')  # decoded once: PNG decoding took a third of the time
         seconds = time.monotonic() - started
+        load = {'start': round(load_start, 1), 'end': round(os.getloadavg()[0], 1),
+                'end_15min': round(os.getloadavg()[2], 1)}
         run = scratch / 'train'
         best = YOLO(str(run / 'weights' / 'best.pt'), task='detect')
         height = math.ceil(args.imgsz * FRAME_ASPECT / STRIDE) * STRIDE
@@ -160,7 +181,10 @@ def main(argv: list[str] | None = None) -> int:
                       'pixels of the letterboxed frame',
             'training': {'data': str(Path(args.data).resolve()), 'epochs': epochs,
                          'imgsz': args.imgsz, 'seed': args.seed, 'batch': args.batch,
-                         'seconds': round(seconds, 1), 'network': NETWORK.name,
+                         'seconds': round(seconds, 1), 'load_average': load,
+                         'command': ' '.join(['train_detector', *sys.argv[1:]]
+                                             if argv is None else ['train_detector', *argv]),
+                         'network': NETWORK.name,
                          'library': f'ultralytics {ultralytics.__version__} (AGPL-3.0)',
                          'torch': torch.__version__},
         }

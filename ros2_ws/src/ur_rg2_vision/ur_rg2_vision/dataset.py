@@ -177,7 +177,8 @@ def plan_placement(seed: int, index: int, attempt: int, camera: Camera, radius: 
                    reach: tuple[float, float], out_of_view_fraction: float,
                    jitter_camera: bool, jitter_color: bool, tries: int = 2000,
                    distractors: int = 0, jitter_scene: bool = False,
-                   ball_color: Sequence[float] = (1.0, 0.0, 0.0, 1.0)) -> Placement:
+                   ball_color: Sequence[float] = (1.0, 0.0, 0.0, 1.0),
+                   any_camera: bool = False) -> Placement:
     """Return the placement of sample ``index`` (``attempt`` > 0: a redraw), seeded.
 
     The ball lies on the floor in the ring the arm reaches. In view means the whole sphere is
@@ -185,11 +186,16 @@ def plan_placement(seed: int, index: int, attempt: int, camera: Camera, radius: 
     wholly outside the image (about ``out_of_view_fraction`` of the samples), or when the
     camera sees the whole ring, it lies behind the camera. With ``distractors``, up to that
     many objects that are not balls stand on the floor in view (see :func:`plan_distractors`);
-    with ``jitter_scene``, the floor's colour and the light change too.
+    with ``jitter_scene``, the floor's colour and the light change too; with ``any_camera``,
+    the camera looks from a random pose (:func:`any_camera_pose`) instead of its own.
     """
     rng = np.random.default_rng([seed, index, attempt])
+    if any_camera:
+        camera = Camera(*any_camera_pose(rng, reach), camera.k, camera.width, camera.height)
     placement = _place_ball(rng, camera, radius, reach, out_of_view_fraction, jitter_camera,
                             jitter_color, tries)
+    if any_camera and placement.camera is None:
+        placement = dataclasses.replace(placement, camera=(camera.position, camera.look_at))
     extra: dict[str, object] = {}
     if distractors:
         view = camera if placement.camera is None else Camera(
@@ -204,6 +210,26 @@ def plan_placement(seed: int, index: int, attempt: int, camera: Camera, radius: 
         light[2] = abs(light[2]) + 0.3  # from above
         extra['light'] = tuple(float(c) for c in light / np.linalg.norm(light))
     return dataclasses.replace(placement, **extra) if extra else placement
+
+
+def any_camera_pose(rng: np.random.Generator, reach: tuple[float, float]
+                    ) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+    """Return a random camera pose (position, look-at) that sees the floor the arm reaches.
+
+    It looks at a point of that floor from any side, 0.6-2.2 m away, 25-65 degrees down, and
+    stands clear of the arm (at least 0.7 m from its base): the variety of camera poses a
+    user's set-up may have, of which the sim's default is one.
+    """
+    while True:
+        distance = math.sqrt(rng.uniform(reach[0] ** 2, reach[1] ** 2))
+        angle = rng.uniform(-math.pi, math.pi)
+        target = np.array([distance * math.cos(angle), distance * math.sin(angle), 0.0])
+        away, pitch = rng.uniform(0.6, 2.2), math.radians(rng.uniform(25, 65))
+        yaw = rng.uniform(-math.pi, math.pi)
+        position = target + away * np.array([math.cos(pitch) * math.cos(yaw),
+                                              math.cos(pitch) * math.sin(yaw), math.sin(pitch)])
+        if np.linalg.norm(position[:2]) >= 0.7:
+            return (tuple(float(v) for v in position), tuple(float(v) for v in target))
 
 
 def _random_color(rng: np.random.Generator) -> tuple[float, float, float, float]:

@@ -240,7 +240,8 @@ class Sampler:
         return plan_placement(a.seed, index, attempt, self.camera, self.radius, self.reach,
                               a.out_of_view, a.jitter_camera, a.jitter_color,
                               distractors=a.distractors, jitter_scene=a.jitter_scene,
-                              ball_color=self.original['ball_color'])
+                              ball_color=self.original['ball_color'],
+                              any_camera=a.any_camera)
 
     def sample(self, index: int) -> tuple[np.ndarray, tuple | None]:
         """Return (rgb, label) of sample ``index``: the ball placed, at rest, in a new frame."""
@@ -354,6 +355,10 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
                         help='share of the samples with the ball out of view (empty labels)')
     parser.add_argument('--jitter-camera', action='store_true',
                         help='move the camera up to 15 cm around its pose for each sample')
+    parser.add_argument('--any-camera', action='store_true',
+                        help='look from a random camera pose for each sample: from any side of '
+                        'the arm, 0.6-2.2 m from a point of the floor in its reach, 25-65 '
+                        'degrees down')
     parser.add_argument('--jitter-color', action='store_true',
                         help='give the ball a random colour for each sample')
     parser.add_argument('--distractors', type=_count, default=0, metavar='N',

@@ -25,7 +25,7 @@ setup(
             'evaluate_policy = ur_rg2_learning.evaluate:main',
             'train_detector = ur_rg2_learning.train_detector:main',
             'evaluate_detector = ur_rg2_learning.evaluate_detector:main',
-            'policy = ur_rg2_learning.policy_node:main',
+            'policy = ur_rg2_learning.entry:policy',
         ],
     },
 )

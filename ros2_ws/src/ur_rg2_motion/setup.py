@@ -19,7 +19,7 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'motion = ur_rg2_motion.motion_node:main',
+            'motion = ur_rg2_motion.entry:motion',
         ],
     },
 )

@@ -18,7 +18,7 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'sim = ur_rg2_sim.sim_node:main',
+            'sim = ur_rg2_sim.entry:sim',
         ],
     },
 )

@@ -20,7 +20,7 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'keys = ur_rg2_teleop.keys_node:main',
+            'keys = ur_rg2_teleop.entry:keys',
         ],
     },
 )

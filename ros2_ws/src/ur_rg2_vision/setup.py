@@ -20,9 +20,9 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'vision = ur_rg2_vision.vision_node:main',
-            'viewer = ur_rg2_vision.viewer_node:main',
-            'dataset = ur_rg2_vision.dataset_node:main',
+            'vision = ur_rg2_vision.entry:vision',
+            'viewer = ur_rg2_vision.entry:viewer',
+            'dataset = ur_rg2_vision.entry:dataset',
         ],
     },
 )

@@ -61,7 +61,13 @@ def run_node(make_node: Callable[[], N], args: Optional[list[str]], logger_name:
     """
     # SIGINT is how ros2 launch and ros2 run stop a node, even when it was started with SIGINT
     # ignored (a shell's background job, nohup).
-    signal.signal(signal.SIGINT, signal.default_int_handler)
+    interrupted = []
+
+    def on_sigint(signum: int, frame: object) -> None:
+        interrupted.append(signum)
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGINT, on_sigint)
     rclpy.init(args=args)
     # Before the node: an executor created after a signal has shut the context down fails
     # half-built and prints a traceback from its __del__.
@@ -92,8 +98,10 @@ def run_node(make_node: Callable[[], N], args: Optional[list[str]], logger_name:
         except Exception as error:
             # SIGINT/SIGTERM shut the context down; during start-up or mid-spin that surfaces
             # as an RCLError, which is no error of ours. The KeyboardInterrupt of that same
-            # SIGINT often follows inside this handler, so the outer try catches it.
-            if rclpy.ok():
+            # SIGINT often follows inside this handler, so the outer try catches it. Raised
+            # while rclpy's C++ turns a message into Python, the KeyboardInterrupt comes out as
+            # pybind11's RuntimeError 'Unable to convert call argument': a stop all the same.
+            if rclpy.ok() and not interrupted:
                 get_logger(logger_name).error(f'stopped: {error}')
                 raise
     except (KeyboardInterrupt, ExternalShutdownException):

@@ -1,0 +1,41 @@
+"""ur_rg2_common.entry: a node stopped while its modules still load ends quietly, exit code 0.
+
+What ``ros2 launch`` does to a node that is still importing when another node fails: SIGINT.
+"""
+
+import signal
+import subprocess
+import sys
+
+from conftest import wait_for
+
+START = ('import sys; from ur_rg2_common.entry import run_main; '
+         'sys.exit(run_main(sys.argv[1]))')
+
+
+def start(tmp_path, module: str, source: str) -> subprocess.Popen:
+    (tmp_path / f'{module}.py').write_text(source)
+    return subprocess.Popen([sys.executable, '-c', START, module], cwd=tmp_path,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def test_a_sigint_while_the_node_module_loads_ends_it_with_no_traceback(tmp_path):
+    loading = tmp_path / 'loading'
+    node = start(tmp_path, 'slow_node', f'import pathlib, time\n'
+                 f'pathlib.Path({str(loading)!r}).touch()\n'
+                 'time.sleep(60)  # a heavy import on a loaded machine\n'
+                 'def main():\n    return 3\n')
+    try:
+        wait_for(loading.exists, 30.0, 'the node module to start loading')
+        node.send_signal(signal.SIGINT)
+        out, err = node.communicate(timeout=30)
+    finally:
+        node.kill()
+    assert node.returncode == 0
+    assert 'Traceback' not in err, err
+
+
+def test_the_node_main_runs_and_its_exit_code_is_kept(tmp_path):
+    node = start(tmp_path, 'quick_node', 'def main():\n    print("running")\n    return 3\n')
+    out, _ = node.communicate(timeout=30)
+    assert (node.returncode, out) == (3, 'running\n')

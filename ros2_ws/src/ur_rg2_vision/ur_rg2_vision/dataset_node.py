@@ -293,10 +293,11 @@ class Sampler:
                                 'a true pose of the ball after the frame')[0]
             if np.linalg.norm(then - position) > AT_REST_M:
                 continue  # it moved while the frame was taken
-            world_to_optical = d.lookup(color.header.frame_id, self.world_frame)
-            if world_to_optical is None:
-                raise SimError(f'/tf_static does not connect {self.world_frame} and '
-                               f'{color.header.frame_id}')
+            # /tf_static is latched: at the sim's full speed a first frame can come before it.
+            frame = color.header.frame_id
+            world_to_optical = d.spin_until(
+                lambda f=frame: self._static_pose(f),
+                f'/tf_static to connect {self.world_frame} and {frame}')[0]
             center = (world_to_optical @ np.append(position, 1.0))[:3]
             k = camera_matrix(info)
             label = yolo_label(sphere_box(center, self.radius, k), info.width, info.height)
@@ -310,6 +311,11 @@ class Sampler:
             return image_to_rgb(color), label
         raise SimError(f'{STALE_FRAMES} frames in a row did not show the ball where '
                        f'ball/true_pose has it')
+
+    def _static_pose(self, frame: str) -> tuple[np.ndarray] | None:
+        """Return (the world's pose in ``frame``,) once /tf_static connects them."""
+        pose = self.driver.lookup(frame, self.world_frame)
+        return None if pose is None else (pose,)
 
     def _camera_moved(self, position: Sequence[float], look_at: Sequence[float]
                       ) -> tuple[int] | None:

@@ -23,7 +23,7 @@ def test_a_sigint_while_the_node_module_loads_ends_it_with_no_traceback(tmp_path
     loading = tmp_path / 'loading'
     node = start(tmp_path, 'slow_node', f'import pathlib, time\n'
                  f'pathlib.Path({str(loading)!r}).touch()\n'
-                 'time.sleep(60)  # a heavy import on a loaded machine\n'
+                 'time.sleep(60)  # a heavy import; the SIGINT ends it at once\n'
                  'def main():\n    return 3\n')
     try:
         wait_for(loading.exists, 30.0, 'the node module to start loading')

@@ -42,7 +42,7 @@ class Taker(Node):
         # As rclpy's C++ does when the SIGINT's KeyboardInterrupt hits it mid-conversion.
         try:
             os.kill(os.getpid(), signal.SIGINT)
-            time.sleep(5)
+            time.sleep(5)  # the SIGINT ends it at once
         except KeyboardInterrupt:
             raise RuntimeError("Unable to convert call argument '0' to Python object")
 

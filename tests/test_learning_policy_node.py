@@ -31,6 +31,8 @@ def call(client) -> Trigger.Response:
     future = client.call_async(Trigger.Request())
     wait_for(future.done, TIMEOUT, f'the {client.srv_name} answer')
     return future.result()
+
+
 BALL = (0.45, -0.25, 0.03)  # world, on the floor
 RADIUS = 0.03
 

@@ -147,7 +147,6 @@ def test_self_collision_pairs_are_clear_in_ordinary_poses(model):
         world.close()
 
 
-
 def wedge_walk(rig: Rig, rng: np.random.Generator) -> None:
     """Drive the arm by a few random joint commands and 30-degree jogs, into whatever."""
     for _ in range(int(rng.integers(1, 8))):

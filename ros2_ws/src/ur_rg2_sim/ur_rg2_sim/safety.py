@@ -98,6 +98,7 @@ class ProtectiveStop:
         self.on_stop(stop, held, last is None or now_ns - last > REWARN_AFTER * NS)
         return stop
 
+
 class Homing:
     """Reset's way home: straight in joint space, or joint by joint when that is blocked.
 

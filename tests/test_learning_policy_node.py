@@ -24,6 +24,9 @@ from ur_rg2_learning.policy_node import PolicyNode
 
 TIMEOUT = 60.0  # s of wall time on a loaded 2-core machine
 
+BALL = (0.45, -0.25, 0.03)  # world, on the floor
+RADIUS = 0.03
+
 
 def call(client) -> Trigger.Response:
     """Call the Trigger service of ``client`` (once it is there) and return its answer."""
@@ -31,10 +34,6 @@ def call(client) -> Trigger.Response:
     future = client.call_async(Trigger.Request())
     wait_for(future.done, TIMEOUT, f'the {client.srv_name} answer')
     return future.result()
-
-
-BALL = (0.45, -0.25, 0.03)  # world, on the floor
-RADIUS = 0.03
 
 
 def test_policy_run_drives_the_tcp_to_the_ball(ros_graph):

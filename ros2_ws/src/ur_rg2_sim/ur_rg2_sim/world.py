@@ -429,9 +429,13 @@ class SimWorld:
 
     def _point_motion(self, link: int, point, positions, travel, zeros) -> list[float]:
         """Return how far ``point`` (world) on ``link`` moves for the joint ``travel``."""
-        com_position, com_orientation = self._p.getLinkState(self.robot, link)[:2]
+        # calculateJacobian takes the point in the link's URDF frame (as pybullet's own
+        # jacobian example passes the centre of mass's offset in it), not about the centre of
+        # mass: the upper arm's is 0.28 m from its frame, and a point there came out moving
+        # up where it moved down.
+        frame_position, frame_orientation = self._p.getLinkState(self.robot, link)[4:6]
         local, _ = self._p.multiplyTransforms(
-            *self._p.invertTransform(com_position, com_orientation), point, [0, 0, 0, 1])
+            *self._p.invertTransform(frame_position, frame_orientation), point, [0, 0, 0, 1])
         linear, _ = self._p.calculateJacobian(self.robot, link, local, positions, zeros, zeros)
         return [sum(row[i] * travel[i] for i in range(len(travel))) for row in linear]
 

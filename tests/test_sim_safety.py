@@ -5,6 +5,7 @@ command (the sim node's joint_command path, SimWorld.move_arm), then checks that
 where it touched, that the RG2 still opens and closes, and that going home works.
 """
 
+from dataclasses import dataclass
 import math
 
 import numpy as np
@@ -37,7 +38,8 @@ class Rig:
         self.world = SimWorld(WorldConfig(robot_model=model))
         self.stops: list[tuple[str, bool]] = []
         self.now_ns = 0
-        self.homing = Homing()
+        self.gave_up: list[list[float]] = []
+        self.homing = Homing(self.gave_up.append)
         self.stop = ProtectiveStop(self._on_stop)
 
     def _on_stop(self, contact, _held, new: bool) -> None:
@@ -82,6 +84,7 @@ class Rig:
 def rig():
     made = Rig()
     yield made
+    made.homing.close()
     made.world.close()
 
 
@@ -147,20 +150,38 @@ def test_self_collision_pairs_are_clear_in_ordinary_poses(model):
         world.close()
 
 
-def wedge_walk(rig: Rig, rng: np.random.Generator) -> None:
-    """Drive the arm by a few random joint commands and 30-degree jogs, into whatever."""
+@dataclass(frozen=True)
+class Walk:
+    """How a random walk drives the arm: which joints, how far."""
+
+    joints: int  # the first this many of ARM_JOINTS
+    most_at_once: int  # joints in one command, at most
+    reach: float  # rad, joint commands go anywhere within plus or minus this
+    jog: float  # rad, a jog's step
+    shortest_wait: float  # s of simulation time between commands, at least
+
+
+UPPER_ARM = Walk(joints=4, most_at_once=2, reach=math.pi, jog=math.radians(30.0),
+                 shortest_wait=0.5)
+WHOLE_ARM = Walk(joints=6, most_at_once=3, reach=2 * math.pi, jog=math.radians(45.0),
+                 shortest_wait=0.3)
+
+
+def wedge_walk(rig: Rig, rng: np.random.Generator, walk: Walk = UPPER_ARM) -> None:
+    """Drive the arm by a few random joint commands and jogs, into whatever."""
     for _ in range(int(rng.integers(1, 8))):
-        joints = rng.choice(ARM_JOINTS[:4], size=int(rng.integers(1, 3)), replace=False)
+        joints = rng.choice(ARM_JOINTS[:walk.joints],
+                            size=int(rng.integers(1, walk.most_at_once + 1)), replace=False)
         if rng.random() < 0.5:
-            rig.world.move_arm({str(j): float(rng.uniform(-math.pi, math.pi)) for j in joints})
+            rig.world.move_arm(
+                {str(j): float(rng.uniform(-walk.reach, walk.reach)) for j in joints})
         else:
-            rig.world.jog_arm({str(j): float(rng.choice([-1, 1]) * math.radians(30.0))
-                               for j in joints})
-        rig.run(float(rng.uniform(0.5, 3.0)))
+            rig.world.jog_arm({str(j): float(rng.choice([-1, 1]) * walk.jog) for j in joints})
+        rig.run(float(rng.uniform(walk.shortest_wait, 3.0)))
 
 
 # Walks after which reset's straight joint path home is blocked (the wrist or the fingers
-# on the floor): 5 of 1,400 walks.
+# on the floor): 5 of 1,400 walks. The way round is planned.
 @pytest.mark.parametrize('seed', [531, 1001, 1178, 1182])
 def test_reset_takes_a_detour_home_when_its_straight_path_is_blocked(rig, seed):
     wedge_walk(rig, np.random.default_rng(seed))
@@ -203,3 +224,53 @@ def test_a_contacts_approach_is_how_far_the_targets_take_it_in(rig):
     world.set_arm_positions(world.arm_targets)
     # 0.05 rad at 0.14 m from the joint's axis: first-order, within a millimetre.
     assert contact.approach == pytest.approx(before - gap(), abs=1e-3)
+
+
+# Walks of the whole arm that stayed stuck before reset planned its way home: the RG2 turned
+# back into the UR3's upper arm (wrist_2 alone sweeps it through), the UR5's fingers on the
+# floor, pressed on by the shoulder's motor while the wrists pulled away (stuck on friction,
+# which the stop did not see: the link was not sent into the floor).
+@pytest.mark.parametrize('model, seed', [('ur3', 82), ('ur3', 115), ('ur3', 156), ('ur3', 258),
+                                         ('ur5', 824), ('ur5', 829), ('ur5', 927),
+                                         ('ur5', 1027)])
+def test_reset_plans_its_way_home_after_a_walk_of_the_whole_arm(model, seed):
+    rig = Rig(model)
+    try:
+        wedge_walk(rig, np.random.default_rng(seed), WHOLE_ARM)
+        rig.reset()
+        assert rig.run(HOME_WITHIN, rig.at_home) < HOME_WITHIN, rig.arm()
+        assert not rig.gave_up
+    finally:
+        rig.homing.close()
+        rig.world.close()
+
+
+def test_the_gripper_turned_back_past_the_upper_arm_goes_home_round_it():
+    # A UR3: wrist_1 turned first, the RG2 turns back past the upper arm; with wrist_1 back,
+    # wrist_2 straight home would sweep the fingers through the upper arm.
+    rig = Rig('ur3')
+    try:
+        for command in ({'wrist_1_joint': 1.57}, {'wrist_2_joint': -2.2}, {'wrist_1_joint': 0.0}):
+            rig.world.move_arm(command)
+            rig.run(3.0)
+        assert not rig.stops
+        rig.reset()
+        assert rig.run(HOME_WITHIN, rig.at_home) < HOME_WITHIN, rig.arm()
+        assert [what for what, _ in rig.stops] == [
+            'rg2_left_finger touched the arm itself (upper_arm_link)']
+    finally:
+        rig.homing.close()
+        rig.world.close()
+
+
+def test_with_no_way_home_the_arm_holds_and_reset_says_so(rig):
+    # A home in the floor: the straight way is stopped, and no plan reaches it.
+    rig.homing.start(rig.world, {**dict.fromkeys(ARM_JOINTS, 0.0), 'shoulder_lift_joint': 1.6})
+    rig.run(3.0)
+    assert len(rig.gave_up) == 1
+    # Held where the stop left it (just clear of the floor), not creeping.
+    before = rig.arm()
+    rig.run(1.0)
+    assert max(abs(a - b) for a, b in zip(rig.arm(), before)) < STILL
+    rig.reset()  # the real home
+    assert rig.run(HOME_WITHIN, rig.at_home) < HOME_WITHIN, rig.arm()

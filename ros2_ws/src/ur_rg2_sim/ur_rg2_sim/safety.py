@@ -15,18 +15,20 @@ So the arm is stopped at the touch, before the load builds up: whenever a link p
 obstacle and the joints' targets would take it further in, steeply, the arm goes back a
 little the way it came and holds there (the targets become those positions). A target that
 moves the link away from the obstacle or along it is never held back, so every command that
-moves away is obeyed. A reset whose straight way home is blocked so takes a detour
+moves away is obeyed. A reset whose straight way home is blocked so plans a way around
 (``Homing``). With it go two fixes in the world (ur_rg2_sim.world): joint commands
 and reset move the joints together (``SimWorld.move_arm``), and a finger at its target counts
 as stopped, however the solver jitters its speed (``SimWorld.gripper_stopped``).
 """
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Optional
 
+import numpy as np
 from ur_rg2_common.contract import ARM_JOINTS
 
+from ur_rg2_sim.planning import CollisionModel
 from ur_rg2_sim.simulation import NS
 from ur_rg2_sim.world import Contact, SimWorld
 
@@ -35,10 +37,10 @@ from ur_rg2_sim.world import Contact, SimWorld
 # the floor scrapes the fingers over it (at about 16 degrees) and goes on home. Every wedge
 # of issue 21 came in at 40 degrees or more.
 MIN_INCIDENCE = 0.5
-# Sent along an obstacle but stuck on it (no arm joint faster than this, rad/s) for this long
-# (s of simulation time): blocked all the same.
-BLOCKED_SPEED = 0.05
-BLOCKED_TIME = 0.25
+# Touching an obstacle and on its way somewhere, but stuck there (no arm joint faster than
+# this, rad/s) for this long (s of simulation time): stopped all the same.
+STUCK_SPEED = 0.05
+STUCK_TIME = 0.25
 # A stop on the same link and obstacle within this long of the last is not warned about again
 # (s of simulation time).
 REWARN_AFTER = 2.0
@@ -49,13 +51,10 @@ BACK_OFF = 0.01
 # driving into it (m): below, the few tenths of a mm that a held arm is pushed about by a
 # contact, and a trajectory starting from there, would count.
 APPROACH_TOLERANCE = 1e-3
-# Reset's detour when its straight path is blocked: one joint after another, the upper arm
-# first, so that each move lifts the arm off what it touched rather than sweeping it along.
-HOMING_ORDER = ('shoulder_lift_joint', 'elbow_joint', 'wrist_1_joint', 'wrist_2_joint',
-                'wrist_3_joint', 'shoulder_pan_joint')
-# rad: on the detour a joint this near home is home enough for the next one to go (at the end
-# all of them go the rest of the way together).
-HOME_TOLERANCE = 0.01
+# rad: a joint this near a waypoint of reset's way home has reached it (home: is home).
+WAYPOINT_TOLERANCE = 0.01
+# Plans reset makes, one after each stop on its way home, before the arm holds where it is.
+MAX_PLANS = 4
 
 
 @dataclass
@@ -70,101 +69,113 @@ class ProtectiveStop:
 
     on_stop: Callable[[Contact, dict[str, float], bool], None]
     _last_stop_ns: dict[tuple[str, str], int] = field(default_factory=dict)
-    _blocked_since_ns: Optional[int] = None
+    _stuck_since_ns: Optional[int] = None
 
     def step(self, world: SimWorld, now_ns: int) -> Optional[Contact]:
         """Check the contacts of the last physics step; stop the arm if it is driven in."""
-        pressed = [c for c in world.obstacle_contacts() if c.approach > APPROACH_TOLERANCE]
-        driven = [c for c in pressed if c.incidence > MIN_INCIDENCE]
-        if pressed and not driven:
-            # Sent along the obstacle: fine while it slides, a stop once it is stuck there.
-            if max(abs(v) for v in world.joint_states().velocities[:len(ARM_JOINTS)]) > \
-                    BLOCKED_SPEED:
-                self._blocked_since_ns = None
-            elif self._blocked_since_ns is None:
-                self._blocked_since_ns = now_ns
-            elif now_ns - self._blocked_since_ns >= BLOCKED_TIME * NS:
-                driven = pressed
-        if not driven:
-            if not pressed:
-                self._blocked_since_ns = None
+        contacts = world.obstacle_contacts()
+        driven = [c for c in contacts
+                  if c.approach > APPROACH_TOLERANCE and c.incidence > MIN_INCIDENCE]
+        if driven:
+            stop = max(driven, key=lambda c: c.approach)
+        elif self._stuck(world, contacts, now_ns):
+            # Sent along or away from what it touches, but held there: by friction, or by one
+            # joint's motor pressing it on while the others pull it away.
+            stop = max(contacts, key=lambda c: c.force)
+        else:
             return None
-        self._blocked_since_ns = None
-        stop = max(driven, key=lambda c: c.approach)
-        held = world.hold_arm(BACK_OFF)
+        self._stuck_since_ns = None  # the next command gets its own time to move
+        # Backing off a link sent along or away would take it back in: held where it is.
+        held = world.hold_arm(BACK_OFF if stop.approach > APPROACH_TOLERANCE else 0.0)
         pair = (stop.link, stop.obstacle)
         last = self._last_stop_ns.get(pair)
         self._last_stop_ns[pair] = now_ns
         self.on_stop(stop, held, last is None or now_ns - last > REWARN_AFTER * NS)
         return stop
 
+    def _stuck(self, world: SimWorld, contacts: list[Contact], now_ns: int) -> bool:
+        """Return whether the arm, touching an obstacle, has not moved on its way for a while."""
+        if not contacts or not world.arm_on_its_way() or max(
+                abs(v) for v in world.joint_states().velocities[:len(ARM_JOINTS)]) > STUCK_SPEED:
+            self._stuck_since_ns = None
+            return False
+        if self._stuck_since_ns is None:
+            self._stuck_since_ns = now_ns
+        return now_ns - self._stuck_since_ns >= STUCK_TIME * NS
+
 
 class Homing:
-    """Reset's way home: straight in joint space, or joint by joint when that is blocked.
+    """Reset's way home: straight in joint space, or along a planned path when that is blocked.
 
-    ``start`` sends every joint home together (SimWorld.move_arm). From some poses on the
-    floor that straight path is blocked: the elbow opening presses the wrist into the floor
-    faster than the shoulder lifts it, and the protective stop holds the arm at once. After
-    such a stop (``blocked``) the joints go home one at a time in HOMING_ORDER; a joint that
-    is stopped in its turn is tried again after the others, round after round, until every
-    joint is home or a round brought the arm no nearer (then it holds where it is). Any
-    other command of the arm ends it (``cancel``). Runs on the simulation thread: ``step``
-    before every physics step, before the protective stop judges the targets.
+    ``start`` sends every joint home together (SimWorld.move_arm). From some poses that
+    straight path is blocked: from an arm folded onto the floor the elbow opening presses the
+    wrist in faster than the shoulder lifts it; on a UR3 a gripper turned back at the wrist
+    meets the upper arm. After such a stop (``blocked``) reset plans a way around in a
+    CollisionModel (ur_rg2_sim.planning, made at the first need) and follows it, waypoint by
+    waypoint, each a straight joint move; a stop on the way plans again from there, up to
+    MAX_PLANS times. Without a way home the arm holds where it is and ``on_give_up`` hears
+    the joint positions it holds at. Any other command of the arm ends it (``cancel``). Runs
+    on the simulation thread: ``step`` before every physics step, before the protective stop
+    judges the targets.
     """
 
-    def __init__(self) -> None:
-        self._home: Optional[dict[str, float]] = None
-        self._detour = False
-        self._joint: Optional[str] = None  # the joint going home on the detour
-        self._stopped: set[str] = set()  # joints stopped in this round of the detour
-        # The joints' summed distance from home when the round began, rad.
-        self._round_distance: Optional[float] = None
+    def __init__(self, on_give_up: Callable[[list[float]], None]) -> None:
+        self._on_give_up = on_give_up
+        self._model: Optional[CollisionModel] = None
+        self._waypoints: list[Sequence[float]] = []  # still to reach; the last is home
+        self._replan = False
+        self._plans = 0
 
     def start(self, world: SimWorld, home: Mapping[str, float]) -> dict[str, float]:
         """Send the arm home, all joints together; return the targets set."""
         applied = world.move_arm(home)
-        self._home = dict(applied)
-        self._detour, self._joint, self._stopped, self._round_distance = False, None, set(), None
+        self._waypoints = [[world.arm_targets[name] for name in ARM_JOINTS]]
+        self._replan, self._plans = False, 0
         return applied
 
     def cancel(self) -> None:
         """Give the arm up to another command."""
-        self._home = None
+        self._waypoints = []
 
     def blocked(self) -> None:
-        """Hear of a protective stop: the way home, or the joint going home, is blocked."""
-        if self._home is None:
-            return
-        if self._joint is not None:
-            self._stopped.add(self._joint)
-        self._detour, self._joint = True, None
+        """Hear of a protective stop: the way home is blocked."""
+        self._replan = bool(self._waypoints)
 
     def step(self, world: SimWorld) -> None:
-        """Send the next joint home when the one going home is there or was stopped."""
-        if self._home is None:
+        """Plan after a stop; send the arm on to the next waypoint when it reached one."""
+        if not self._waypoints:
             return
-        positions = dict(zip(ARM_JOINTS, world.joint_states().positions))
-        errors = {name: abs(positions[name] - self._home[name]) for name in HOMING_ORDER}
-        away = [name for name in HOMING_ORDER if errors[name] > HOME_TOLERANCE]
-        if not away:
-            if self._detour:
-                # The last few mrad together (a stop's hold may have left some joints short).
-                world.move_arm(self._home)
-            self._home = None
+        positions = world.joint_states().positions
+        arm = positions[:len(ARM_JOINTS)]
+        if self._replan:
+            self._replan = False
+            self._plan(world, arm, positions[len(ARM_JOINTS):])
+        elif max(abs(a - w) for a, w in zip(arm, self._waypoints[0])) <= WAYPOINT_TOLERANCE:
+            self._waypoints.pop(0)
+            if self._waypoints:
+                world.move_arm(dict(zip(ARM_JOINTS, self._waypoints[0])))
+
+    def _plan(self, world: SimWorld, arm: Sequence[float], gripper: Sequence[float]) -> None:
+        home = self._waypoints[-1]
+        path = None
+        if self._plans < MAX_PLANS:
+            self._plans += 1
+            if self._model is None:
+                self._model = CollisionModel(world.config.robot_model)
+            # Seeded: the same pose plans the same way, run after run.
+            path = self._model.plan(arm, home, gripper, np.random.default_rng(self._plans))
+        if path is None:
+            self._waypoints = []
+            self._on_give_up(list(arm))
             return
-        if not self._detour or self._joint in away:
-            return
-        distance = sum(errors.values())
-        if self._round_distance is None:
-            self._round_distance = distance
-        waiting = [name for name in away if name not in self._stopped]
-        if not waiting:  # the round is over
-            if distance >= self._round_distance:
-                self._home = None  # no nearer: hold where it is
-                return
-            self._stopped, self._round_distance, waiting = set(), distance, away
-        self._joint = waiting[0]
-        world.move_arm({self._joint: self._home[self._joint]})
+        self._waypoints = [list(pose) for pose in path[1:]]
+        world.move_arm(dict(zip(ARM_JOINTS, self._waypoints[0])))
+
+    def close(self) -> None:
+        """Release the collision model, if one was made (once the simulation has stopped)."""
+        if self._model is not None:
+            self._model.close()
+            self._model = None
 
 
 def describe(contact: Contact) -> str:

@@ -221,7 +221,7 @@ class SimNode(Node):
         self._controllers = Controllers(self, self._sim)
         # Reset's way home; a trajectory started since ends it (the others end it in
         # _command_arm).
-        self._homing = Homing()
+        self._homing = Homing(self._on_no_way_home)
         self._sim.step_hooks.append(self._step_homing)
         # After the controllers and homing: it judges the targets they have just set.
         self._sim.step_hooks.append(ProtectiveStop(self._on_protective_stop).step)
@@ -237,6 +237,7 @@ class SimNode(Node):
         stopped = self._sim.stop()
         self._controllers.close()
         if stopped:
+            self._homing.close()
             self._world.close()
         else:
             # pybullet is not thread-safe: disconnecting under a running step can abort the
@@ -313,6 +314,11 @@ class SimNode(Node):
             self._homing.cancel()
         else:
             self._homing.step(world)
+
+    def _on_no_way_home(self, held: list[float]) -> None:
+        self.get_logger().warning(
+            f'reset: no way home clear of the floor, the pedestal and the arm itself from '
+            f'{degrees_list(held)} deg; the arm holds there. Jog it clear and reset again')
 
     def _on_protective_stop(self, contact: Contact, held: dict[str, float], new: bool) -> None:
         """Report a stop: abort the running trajectory, tell homing, warn once (sim thread)."""

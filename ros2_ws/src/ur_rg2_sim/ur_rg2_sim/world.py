@@ -197,11 +197,13 @@ class SimWorld:
     def _configure_contacts(self) -> None:
         # The floor and the pedestal are solid for the whole arm and gripper, except where the
         # base sits on the plate by design (its mesh reaches a few mm into it).
-        for link in (-1, self._link_index['base_link'], self._link_index['base']):
+        self._on_pedestal = (-1, self._link_index['base_link'], self._link_index['base'])
+        for link in self._on_pedestal:
             self._p.setCollisionFilterPair(self.robot, self.pedestal, link, -1, 0)
         # Self-collision only for SELF_COLLISION_PAIRS (see there).
-        allowed = {frozenset(self._link_index[name] for name in pair)
-                   for pair in SELF_COLLISION_PAIRS}
+        self._self_collision_links = [tuple(self._link_index[name] for name in pair)
+                                      for pair in SELF_COLLISION_PAIRS]
+        allowed = {frozenset(pair) for pair in self._self_collision_links}
         links = range(-1, self._p.getNumJoints(self.robot))
         for a in links:
             for b in links:
@@ -427,6 +429,27 @@ class SimWorld:
                                  sum(point[9] for point in points), approach, incidence))
         return found
 
+    def clearance(self, within: float) -> float:
+        """Return the robot's least gap to the floor, the pedestal and itself, up to ``within``.
+
+        In m, negative where a link is in an obstacle. From the links' poses now, stepped or
+        placed (``place_robot``); the pairs are those the simulation lets touch.
+        """
+        points = list(self._p.getClosestPoints(self.robot, self.floor, within))
+        points += [point for point in self._p.getClosestPoints(self.robot, self.pedestal, within)
+                   if point[3] not in self._on_pedestal]
+        for a, b in self._self_collision_links:
+            points += self._p.getClosestPoints(self.robot, self.robot, within, a, b)
+        return min((point[8] for point in points), default=within)
+
+    def place_robot(self, positions: Sequence[float]) -> None:
+        """Put the arm and gripper joints (``joint_names`` order) at ``positions``, motors unset.
+
+        For a world that only tries poses (ur_rg2_sim.planning), never stepped.
+        """
+        for index, position in zip(self._indices, positions):
+            self._p.resetJointState(self.robot, index, position, 0.0)
+
     def _point_motion(self, link: int, point, positions, travel, zeros) -> list[float]:
         """Return how far ``point`` (world) on ``link`` moves for the joint ``travel``."""
         # calculateJacobian takes the point in the link's URDF frame (as pybullet's own
@@ -438,6 +461,12 @@ class SimWorld:
             *self._p.invertTransform(frame_position, frame_orientation), point, [0, 0, 0, 1])
         linear, _ = self._p.calculateJacobian(self.robot, link, local, positions, zeros, zeros)
         return [sum(row[i] * travel[i] for i in range(len(travel))) for row in linear]
+
+    def arm_on_its_way(self) -> bool:
+        """Return whether an arm joint is further from its target than a motor holding it."""
+        positions = self.joint_states().positions
+        return any(abs(self.arm_targets[name] - position) > _HOLDING_ERROR
+                   for name, position in zip(ARM_JOINTS, positions))
 
     def hold_arm(self, back_off: float = 0.0) -> dict[str, float]:
         """Hold the arm where it is, or ``back_off`` rad back the way it was going; return it.

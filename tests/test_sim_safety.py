@@ -11,6 +11,7 @@ import math
 import numpy as np
 import pytest
 from ur_rg2_common.contract import ARM_JOINTS, RG2_MAX_OPENING
+from ur_rg2_sim.planning import CollisionModel
 from ur_rg2_sim.safety import MIN_INCIDENCE, Homing, ProtectiveStop, describe
 from ur_rg2_sim.simulation import NS
 from ur_rg2_sim.world import SELF_COLLISION_PAIRS, SimWorld, WorldConfig
@@ -39,7 +40,8 @@ class Rig:
         self.stops: list[tuple[str, bool]] = []
         self.now_ns = 0
         self.gave_up: list[list[float]] = []
-        self.homing = Homing(self.gave_up.append)
+        self.model = CollisionModel(model)
+        self.homing = Homing(self.model, self.gave_up.append)
         self.stop = ProtectiveStop(self._on_stop)
 
     def _on_stop(self, contact, _held, new: bool) -> None:
@@ -84,7 +86,7 @@ class Rig:
 def rig():
     made = Rig()
     yield made
-    made.homing.close()
+    made.model.close()
     made.world.close()
 
 
@@ -241,7 +243,7 @@ def test_reset_plans_its_way_home_after_a_walk_of_the_whole_arm(model, seed):
         assert rig.run(HOME_WITHIN, rig.at_home) < HOME_WITHIN, rig.arm()
         assert not rig.gave_up
     finally:
-        rig.homing.close()
+        rig.model.close()
         rig.world.close()
 
 
@@ -259,7 +261,7 @@ def test_the_gripper_turned_back_past_the_upper_arm_goes_home_round_it():
         assert [what for what, _ in rig.stops] == [
             'rg2_left_finger touched the arm itself (upper_arm_link)']
     finally:
-        rig.homing.close()
+        rig.model.close()
         rig.world.close()
 
 

@@ -110,18 +110,19 @@ class Homing:
     ``start`` sends every joint home together (SimWorld.move_arm). From some poses that
     straight path is blocked: from an arm folded onto the floor the elbow opening presses the
     wrist in faster than the shoulder lifts it; on a UR3 a gripper turned back at the wrist
-    meets the upper arm. After such a stop (``blocked``) reset plans a way around in a
-    CollisionModel (ur_rg2_sim.planning, made at the first need) and follows it, waypoint by
-    waypoint, each a straight joint move; a stop on the way plans again from there, up to
+    meets the upper arm. After such a stop (``blocked``) reset plans a way around in
+    ``model`` (ur_rg2_sim.planning) and follows it, waypoint by waypoint, each a straight
+    joint move; a stop on the way plans again from there, up to
     MAX_PLANS times. Without a way home the arm holds where it is and ``on_give_up`` hears
     the joint positions it holds at. Any other command of the arm ends it (``cancel``). Runs
     on the simulation thread: ``step`` before every physics step, before the protective stop
     judges the targets.
     """
 
-    def __init__(self, on_give_up: Callable[[list[float]], None]) -> None:
+    def __init__(self, model: CollisionModel,
+                 on_give_up: Callable[[list[float]], None]) -> None:
+        self._model = model
         self._on_give_up = on_give_up
-        self._model: Optional[CollisionModel] = None
         self._waypoints: list[Sequence[float]] = []  # still to reach; the last is home
         self._replan = False
         self._plans = 0
@@ -160,8 +161,6 @@ class Homing:
         path = None
         if self._plans < MAX_PLANS:
             self._plans += 1
-            if self._model is None:
-                self._model = CollisionModel(world.config.robot_model)
             # Seeded: the same pose plans the same way, run after run.
             path = self._model.plan(arm, home, gripper, np.random.default_rng(self._plans))
         if path is None:
@@ -170,12 +169,6 @@ class Homing:
             return
         self._waypoints = [list(pose) for pose in path[1:]]
         world.move_arm(dict(zip(ARM_JOINTS, self._waypoints[0])))
-
-    def close(self) -> None:
-        """Release the collision model, if one was made (once the simulation has stopped)."""
-        if self._model is not None:
-            self._model.close()
-            self._model = None
 
 
 def describe(contact: Contact) -> str:

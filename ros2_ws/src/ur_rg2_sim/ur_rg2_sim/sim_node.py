@@ -31,6 +31,7 @@ from ur_rg2_sim.commands import CommandError, finite_vector, in_range, joint_tar
 from ur_rg2_sim.controllers import Controllers
 from ur_rg2_sim.frame_publisher import FramePublisher
 from ur_rg2_sim.frames import OPTICAL_FRAME, load_frame_tree, robot_description
+from ur_rg2_sim.planning import CollisionModel
 from ur_rg2_sim.robot_model import ROBOT_MODELS, RobotModelError
 from ur_rg2_sim.safety import Homing, ProtectiveStop, describe
 from ur_rg2_sim.serialized import SerializedMessage
@@ -221,7 +222,10 @@ class SimNode(Node):
         self._controllers = Controllers(self, self._sim)
         # Reset's way home; a trajectory started since ends it (the others end it in
         # _command_arm).
-        self._homing = Homing(self._on_no_way_home)
+        # Its world is made now, not at the first blocked reset: 33 MB (a pybullet client's
+        # own) taken at start-up, not in the middle of a run, and no 0.1 s pause then.
+        self._reset_model = CollisionModel(s.robot_model)
+        self._homing = Homing(self._reset_model, self._on_no_way_home)
         self._sim.step_hooks.append(self._step_homing)
         # After the controllers and homing: it judges the targets they have just set.
         self._sim.step_hooks.append(ProtectiveStop(self._on_protective_stop).step)
@@ -237,7 +241,7 @@ class SimNode(Node):
         stopped = self._sim.stop()
         self._controllers.close()
         if stopped:
-            self._homing.close()
+            self._reset_model.close()
             self._world.close()
         else:
             # pybullet is not thread-safe: disconnecting under a running step can abort the

@@ -3,7 +3,14 @@
 import numpy as np
 import pytest
 from ur_rg2_common.contract import RG2_MAX_OPENING
-from ur_rg2_sim.planning import MARGIN, SEGMENT_RESOLUTION, CollisionModel, plan_path, segment_free
+from ur_rg2_sim.planning import (
+    MARGIN,
+    MAX_CHECKS,
+    SEGMENT_RESOLUTION,
+    CollisionModel,
+    plan_path,
+    segment_free,
+)
 
 LOWER, UPPER = np.full(2, -np.pi), np.full(2, np.pi)
 OPEN = [RG2_MAX_OPENING / 2] * 2  # the RG2's finger joints, fully open
@@ -67,12 +74,16 @@ def test_the_same_pose_plans_the_same_way():
     assert all(np.array_equal(a, b) for a, b in zip(first, second))
 
 
-def test_no_way_is_none():
-    def boxed_in(q):
-        return np.linalg.norm(q - np.array([1.0, 0.0])) < 0.1 or \
-            np.linalg.norm(q - np.array([1.0, 0.0])) > 0.3
+def test_no_way_is_none_after_a_bounded_search():
+    calls = []
+
+    def boxed_in(q):  # the goal in a ring: no way in
+        calls.append(q)
+        return not 0.1 <= np.linalg.norm(q - np.array([1.0, 0.0])) <= 0.3
+
     start, goal = np.zeros(2), np.array([1.0, 0.0])
     assert plan_path(boxed_in, start, goal, LOWER, UPPER, np.random.default_rng(0)) is None
+    assert len(calls) <= MAX_CHECKS + 1
     assert plan_path(lambda q: q[0] < 0.9, start, goal, LOWER, UPPER,
                      np.random.default_rng(0)) is None  # the goal is in an obstacle
 

@@ -5,6 +5,7 @@ command (the sim node's joint_command path, SimWorld.move_arm), then checks that
 where it touched, that the RG2 still opens and closes, and that going home works.
 """
 
+from contextlib import closing
 from dataclasses import dataclass
 import math
 
@@ -48,6 +49,10 @@ class Rig:
         self.stops.append((describe(contact), new))
         self.homing.blocked()
 
+    def close(self) -> None:
+        self.model.close()
+        self.world.close()
+
     def reset(self) -> None:
         """Send the arm home, as the sim's reset service does."""
         self.homing.start(self.world, dict.fromkeys(ARM_JOINTS, 0.0))
@@ -86,8 +91,7 @@ class Rig:
 def rig():
     made = Rig()
     yield made
-    made.model.close()
-    made.world.close()
+    made.close()
 
 
 @pytest.mark.parametrize('case', list(WEDGES))
@@ -236,22 +240,17 @@ def test_a_contacts_approach_is_how_far_the_targets_take_it_in(rig):
                                          ('ur5', 824), ('ur5', 829), ('ur5', 927),
                                          ('ur5', 1027)])
 def test_reset_plans_its_way_home_after_a_walk_of_the_whole_arm(model, seed):
-    rig = Rig(model)
-    try:
+    with closing(Rig(model)) as rig:
         wedge_walk(rig, np.random.default_rng(seed), WHOLE_ARM)
         rig.reset()
         assert rig.run(HOME_WITHIN, rig.at_home) < HOME_WITHIN, rig.arm()
         assert not rig.gave_up
-    finally:
-        rig.model.close()
-        rig.world.close()
 
 
 def test_the_gripper_turned_back_past_the_upper_arm_goes_home_round_it():
     # A UR3: wrist_1 turned first, the RG2 turns back past the upper arm; with wrist_1 back,
     # wrist_2 straight home would sweep the fingers through the upper arm.
-    rig = Rig('ur3')
-    try:
+    with closing(Rig('ur3')) as rig:
         for command in ({'wrist_1_joint': 1.57}, {'wrist_2_joint': -2.2}, {'wrist_1_joint': 0.0}):
             rig.world.move_arm(command)
             rig.run(3.0)
@@ -260,9 +259,6 @@ def test_the_gripper_turned_back_past_the_upper_arm_goes_home_round_it():
         assert rig.run(HOME_WITHIN, rig.at_home) < HOME_WITHIN, rig.arm()
         assert [what for what, _ in rig.stops] == [
             'rg2_left_finger touched the arm itself (upper_arm_link)']
-    finally:
-        rig.model.close()
-        rig.world.close()
 
 
 def test_with_no_way_home_the_arm_holds_and_reset_says_so(rig):

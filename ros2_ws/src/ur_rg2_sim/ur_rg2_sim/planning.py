@@ -18,14 +18,15 @@ from ur_rg2_sim.world import SimWorld, WorldConfig
 Pose = np.ndarray
 IsFree = Callable[[Pose], bool]
 
-# A planned path keeps this far from every obstacle (m) where it can; it covers how far a link
+# A planned path keeps this far from every obstacle (m) where it can: about how far a link
 # moves between two poses checked along a segment (SEGMENT_RESOLUTION at the UR5's reach of
-# 0.85 m is 1.7 cm).
+# 0.85 m is 1.7 cm; more where several joints turn at once). A touch missed between two checks
+# is still stopped by the protective stop, and reset plans again from there.
 MARGIN = 0.02
 # Where the arm starts closer than MARGIN (it was stopped at a contact), the path must leave
 # the contact: it may come nearer than it started by at most SLIP (m), and must gain LIFT_OFF
-# (m per rad of joint motion) from there until it has MARGIN. A path sliding along the floor
-# stuck on the friction of a finger pressed on by the shoulder's motor.
+# (m per rad of joint motion) from there until it has MARGIN. A path that slid along the floor
+# got stuck: the shoulder's motor pressed a finger on, and friction held it.
 SLIP = 1e-3
 LIFT_OFF = 0.05
 # rad: the largest step of any joint between two poses checked along a segment.
@@ -35,14 +36,16 @@ EXTEND_STEP = 0.3
 # rad: samples are drawn this far around the box spanned by the start and the goal (and within
 # the joint limits): a way around an obstacle rarely needs a joint further out.
 SAMPLE_SLACK = np.pi / 2
-# Samples drawn before giving up, and tries at cutting a corner of a path found.
-MAX_SAMPLES = 600
+# Poses tried before giving up (each about 0.2 ms: this bounds a fruitless search to 2 s of
+# the simulation thread; a way found took up to 2,900 in 3,300 random walks), and tries at
+# cutting a corner of a path found.
+MAX_CHECKS = 10_000
 SHORTCUT_TRIES = 40
 
 
 def segment_free(is_free: IsFree, a: Pose, b: Pose) -> bool:
     """Return whether the straight joint-space segment from ``a`` (free) to ``b`` is free."""
-    steps = int(np.ceil(np.max(np.abs(b - a)) / SEGMENT_RESOLUTION))
+    steps = max(1, int(np.ceil(np.max(np.abs(b - a)) / SEGMENT_RESOLUTION)))
     return all(is_free(a + (b - a) * (i / steps)) for i in _coarse_to_fine(steps))
 
 
@@ -63,8 +66,31 @@ def plan_path(is_free: IsFree, start: Pose, goal: Pose, lower: Pose, upper: Pose
               rng: np.random.Generator) -> Optional[list[Pose]]:
     """Return free waypoints from ``start`` to ``goal`` (both included), or None.
 
-    ``start`` is taken as free; ``lower`` and ``upper`` are the joint limits.
+    ``start`` is taken as free; ``lower`` and ``upper`` are the joint limits. None when the
+    goal is not free or no way was found within MAX_CHECKS poses.
     """
+    checks = 0
+
+    def counted(pose: Pose) -> bool:
+        nonlocal checks
+        checks += 1
+        if checks > MAX_CHECKS:
+            raise _OutOfChecksError
+        return is_free(pose)
+
+    try:
+        path = _connect_trees(counted, start, goal, lower, upper, rng)
+    except _OutOfChecksError:
+        return None
+    return path if path is None else _shortcut(is_free, path, rng)
+
+
+class _OutOfChecksError(Exception):
+    """MAX_CHECKS poses were tried."""
+
+
+def _connect_trees(is_free: IsFree, start: Pose, goal: Pose, lower: Pose, upper: Pose,
+                   rng: np.random.Generator) -> Optional[list[Pose]]:
     if not is_free(goal):
         return None
     if segment_free(is_free, start, goal):
@@ -72,16 +98,13 @@ def plan_path(is_free: IsFree, start: Pose, goal: Pose, lower: Pose, upper: Pose
     low = np.maximum(lower, np.minimum(start, goal) - SAMPLE_SLACK)
     high = np.minimum(upper, np.maximum(start, goal) + SAMPLE_SLACK)
     trees = (_Tree(start), _Tree(goal))
-    for _ in range(MAX_SAMPLES):
+    while True:
         grown = trees[0].extend(is_free, rng.uniform(low, high))
         if grown is not None and trees[1].connect(is_free, grown):
             # Both trees hold ``grown`` now: root, ..., grown, ..., other root.
             path = trees[0].path_to_root()[::-1] + trees[1].path_to_root()[1:]
-            if trees[0].root is not start:
-                path.reverse()
-            return _shortcut(is_free, path, rng)
+            return path if trees[0].root is start else path[::-1]
         trees = trees[::-1]
-    return None
 
 
 class _Tree:

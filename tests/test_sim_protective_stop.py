@@ -10,6 +10,7 @@ import math
 from conftest import start_sim, wait_for
 import numpy as np
 import pytest
+from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 from test_sim_controllers import STILL, Controllers, trajectory
 from test_sim_node import FAST, stamp_ns
@@ -142,3 +143,18 @@ def test_a_reset_whose_straight_way_is_blocked_goes_round(ros_graph):
     stops = wait_for(lambda: protective_stops(sim), 60, 'the stop on the straight way')
     assert len(stops) == 1 and 'touched the arm itself (upper_arm_link)' in stops[0], stops
     assert not [w for w in sim.warnings() if 'no way home' in w]
+
+
+def test_a_reset_with_no_way_home_warns_and_the_arm_holds(ros_graph):
+    node = start_sim(ros_graph, camera_rate=0.0, real_time_factor=FAST)
+    sim = Sim(ros_graph)
+    # A home in the floor: the straight way there is stopped, and no way reaches it.
+    floor_home = [0.0, 1.6, 0.0, 0.0, 0.0, 0.0]
+    assert node.set_parameters([Parameter('home_position', value=floor_home)])[0].successful
+    assert sim.call('reset').success
+    warning, = wait_for(lambda: [w for w in sim.warnings() if 'no way home' in w], 60,
+                        "reset's warning")
+    assert 'the arm holds there' in warning and 'Jog it clear' in warning
+    wait_held(sim)
+    assert node.set_parameters([Parameter('home_position', value=[0.0] * 6)])[0].successful
+    assert reset_home_time(sim) < HOME_WITHIN

@@ -220,11 +220,11 @@ class SimNode(Node):
 
         self._sim = SimulationLoop(self._world, self, s.schedule(), self._make_camera(s))
         self._controllers = Controllers(self, self._sim)
+        # Where reset plans its way round, made now rather than at the first blocked reset:
+        # 33 MB (a pybullet client's own) taken at start-up, not in the middle of a run.
+        self._reset_model = CollisionModel(s.robot_model)
         # Reset's way home; a trajectory started since ends it (the others end it in
         # _command_arm).
-        # Its world is made now, not at the first blocked reset: 33 MB (a pybullet client's
-        # own) taken at start-up, not in the middle of a run, and no 0.1 s pause then.
-        self._reset_model = CollisionModel(s.robot_model)
         self._homing = Homing(self._reset_model, self._on_no_way_home)
         self._sim.step_hooks.append(self._step_homing)
         # After the controllers and homing: it judges the targets they have just set.

@@ -16,6 +16,7 @@ import gymnasium as gym
 
 import ur_rg2_learning  # noqa: F401 - registers the environments
 from ur_rg2_learning.actor import Actor, PolicyError
+from ur_rg2_learning.policy_node import SHIPPED, shipped_policy
 
 # Training seeds its environment with small numbers: these episodes are held out.
 DEFAULT_SEED = 1_000_000
@@ -46,7 +47,9 @@ def success_rate(actor: Actor | Callable[[Any], Any], episodes: int, seed: int,
 def main(argv: list[str] | None = None) -> int:
     """Print ``success rate R over N episodes``; exit code 0, 2 on a bad policy directory."""
     parser = argparse.ArgumentParser(prog='evaluate_policy', description=__doc__.split('\n')[0])
-    parser.add_argument('--policy', required=True, help='policy directory (train_policy --out)')
+    parser.add_argument('--policy', required=True,
+                        help='policy directory (train_policy --out), or a policy shipped with '
+                        "the package: 'reach' or 'pick', as the policy node's policy_dir")
     parser.add_argument('--episodes', type=int, default=100, help='episodes to run (100)')
     parser.add_argument('--seed', type=int, default=DEFAULT_SEED,
                         help=f'seed of the first episode ({DEFAULT_SEED}, held out)')
@@ -54,7 +57,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.episodes < 1:
         parser.error('--episodes must be at least 1')
     try:
-        actor = Actor.load(args.policy)
+        actor = Actor.load(shipped_policy(args.policy) if args.policy in SHIPPED
+                           else args.policy)
     except PolicyError as error:
         print(f'evaluate_policy: {error}', file=sys.stderr)
         return 2

@@ -82,7 +82,7 @@ def _median_row(label: str, timings: list[tuple[float, float]]) -> tuple[str, st
 def run() -> list[tuple[str, str, str]]:
     """Time both ways of starting the graph; return benchmark rows."""
     env = bench_env(DOMAIN_ID)
-    common = ['port:=0', f'frames_dir:={tempfile.gettempdir()}/launch-bench-frames']
+    common = ['port:=0']
     rows = [
         _median_row('ros2 launch ur_rg2_bringup graph.launch.py', [
             _time_one(['ros2', 'launch', 'ur_rg2_bringup', 'graph.launch.py', *common],

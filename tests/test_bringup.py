@@ -1,22 +1,24 @@
-"""ur_rg2_bringup without running nodes: launch arguments, their routing, the command line."""
+"""ur_rg2_bringup without running nodes: the launch file's arguments, the command line."""
 
 import fcntl
+import logging
 import os
 from pathlib import Path
 import pty
+import re
 import subprocess
 import sys
 import termios
 
+from ament_index_python.packages import get_package_share_directory
+from launch import LaunchContext
+from launch.launch_description_sources import get_launch_description_from_python_launch_file
+from launch.utilities import perform_substitutions
 import pytest
-from ur_rg2_bringup.graph import (
-    NODES,
-    PARAMETER_ARGUMENTS,
-    describe_exit,
-    graph_nodes,
-    route_parameters,
-)
+from ur_rg2_bringup.graph import describe_exit
+from ur_rg2_bringup.launch_graph import graph_launch_file, warnings_and_errors
 from ur_rg2_bringup.run import UsageError, parse_args
+import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -51,77 +53,101 @@ def test_describe_exit():
     assert describe_exit(-11) == 'was killed by signal 11 (SIGSEGV)'
 
 
-def test_the_launch_file_starts_sim_vision_motion_and_viewer():
-    assert [(node.package, node.executable, node.node_name) for node in NODES] == [
-        ('ur_rg2_sim', 'sim', 'ur_rg2_sim'), ('ur_rg2_vision', 'vision', 'ur_rg2_vision'),
-        ('ur_rg2_motion', 'motion', 'ur_rg2_motion'), ('ur_rg2_vision', 'viewer', 'ur_rg2_viewer')]
+def launch_arguments() -> dict:
+    description = get_launch_description_from_python_launch_file(graph_launch_file())
+    return {argument.name: argument for argument in description.get_launch_arguments()}
 
 
-def test_use_sim_false_leaves_the_sim_out_and_its_parameters_unrouted():
-    assert graph_nodes('True') == NODES
-    nodes = graph_nodes('false')
-    assert [node.name for node in nodes] == ['vision', 'motion', 'viewer']
-    routed, unknown = route_parameters({'camera_rate': '15', 'ball_radius': '0.05',
-                                        'use_sim': 'false'}, nodes)
-    assert routed['vision'] == ['-p', 'ball_radius:=0.05']
-    assert unknown == ["parameter 'camera_rate' is for sim, which is not started"]
-    with pytest.raises(ValueError, match='expected true or false'):
-        graph_nodes('maybe')
+def test_the_launch_file_declares_the_contract_arguments_with_descriptions_and_defaults():
+    arguments = launch_arguments()
+    assert list(arguments) == ['use_sim', 'robot_model', 'gui', 'camera_rate', 'port',
+                               'namespace', 'view3d', 'params_file']
+    context = LaunchContext()
+    defaults = {name: perform_substitutions(context, argument.default_value)
+                for name, argument in arguments.items()}
+    assert defaults == {
+        'use_sim': 'true', 'robot_model': 'ur5', 'gui': 'false', 'camera_rate': '30.0',
+        'port': '8080', 'namespace': '', 'view3d': 'false',
+        'params_file': str(Path(get_package_share_directory('ur_rg2_bringup'))
+                           / 'config' / 'graph.yaml')}
+    assert Path(defaults['params_file']).resolve() == (
+        ROOT / 'ros2_ws/src/ur_rg2_bringup/config/graph.yaml')
+    for name, argument in arguments.items():
+        assert len(argument.description) > 20, name
+    assert arguments['robot_model'].choices == ['ur5', 'ur3']
+    for name in ('use_sim', 'gui', 'view3d'):
+        assert arguments[name].choices == ['true', 'false'], name
 
 
-def test_arguments_go_to_the_nodes_that_declare_them_or_to_the_one_named():
-    routed, unknown = route_parameters({
-        'robot_model': 'ur3', 'ball_radius': '0.05', 'port': '8081',
-        'sim:camera_rate': '15.0', 'ur_rg2_vision:frames_dir': '/tmp/f',
-        'use_sim_time': 'true', 'namespace': '/arm1', 'ros_args': '--log-level debug'})
-    assert unknown == []
-    assert routed['sim'] == ['-p', 'robot_model:=ur3', '-p', 'ball_radius:=0.05',
-                             '-p', 'camera_rate:=15.0', '-p', 'use_sim_time:=true']
-    assert routed['vision'] == ['-p', 'ball_radius:=0.05', '-p', 'frames_dir:=/tmp/f',
-                                '-p', 'use_sim_time:=true']
-    assert routed['viewer'] == ['-p', 'port:=8081', '-p', 'use_sim_time:=true']
-    assert routed['motion'] == ['-p', 'use_sim_time:=true']
+def test_show_args_shows_every_argument_with_its_default():
+    shown = subprocess.run(['ros2', 'launch', 'ur_rg2_bringup', 'graph.launch.py',
+                            '--show-args'], capture_output=True, text=True, timeout=60)
+    assert shown.returncode == 0, shown.stderr
+    for name, default in (('use_sim', 'true'), ('robot_model', 'ur5'), ('gui', 'false'),
+                          ('camera_rate', '30.0'), ('port', '8080'), ('view3d', 'false')):
+        assert re.search(rf"'{name}':\n .*\n +\(default: '{re.escape(default)}'\)",
+                         shown.stdout), (name, shown.stdout)
+    assert "FindPackageShare(pkg='ur_rg2_bringup')" in shown.stdout
 
 
-def test_what_no_node_declares_is_named_with_a_suggestion():
-    routed, unknown = route_parameters({
-        'camera_rte': '15', 'vision:camera_rate': '5', 'sm:gui': 'true',
-        'keys:step_deg': '2', 'zzz': '1'})
-    assert all(arguments == [] for arguments in routed.values())
-    assert unknown == [
-        "no node declares parameter 'camera_rte' (did you mean camera_rate?)",
-        "ur_rg2_vision does not declare parameter 'camera_rate'",
-        "no node 'sm' in the graph for sm:gui:=... (did you mean sim?)",
-        "no node 'keys' in the graph for keys:step_deg:=...",
-        "no node declares parameter 'zzz'"]
+def test_the_params_file_has_a_section_per_node_of_the_graph():
+    params = yaml.safe_load((ROOT / 'ros2_ws/src/ur_rg2_bringup/config/graph.yaml').read_text())
+    assert list(params) == ['/**/ur_rg2_sim', '/**/ur_rg2_vision', '/**/ur_rg2_motion',
+                            '/**/ur_rg2_viewer']
+    assert params['/**/ur_rg2_sim']['ros__parameters']['camera_rate'] == 30.0
+    assert params['/**/ur_rg2_viewer']['ros__parameters']['port'] == 8080
 
 
-def test_every_argument_has_a_description_and_a_node():
-    names = [argument.name for argument in PARAMETER_ARGUMENTS]
-    assert len(names) == len(set(names))
-    short = {node.name for node in NODES}
-    for argument in PARAMETER_ARGUMENTS:
-        assert argument.description and set(argument.nodes) <= short, argument
+KNOWN = ['use_sim', 'robot_model', 'gui', 'camera_rate', 'port', 'namespace', 'view3d',
+         'params_file']
 
 
-def test_the_command_line_splits_keys_parameters_from_launch_arguments():
-    options = parse_args(['robot_model:=ur3', 'sim:camera_rate:=15.0', 'step_deg:=2.0',
-                          'ur_rg2_teleop:step_mm:=5.0', 'ball_position:=[0.5, 0.0, 0.03]',
-                          '--headless', '--ros-args', '-r', '__ns:=/arm1', '--log-level',
-                          'debug'])
+def test_the_command_line_splits_launch_arguments_from_keys_arguments():
+    options = parse_args(['robot_model:=ur3', 'camera_rate:=15.0', 'namespace:=/arm1',
+                          'params_file:=/tmp/p.yaml', '--headless', '--ros-args', '-p',
+                          'step_deg:=2.0', '--log-level', 'debug'], KNOWN)
     assert options.headless and not options.help
     assert options.launch_arguments == (
-        ('robot_model', 'ur3'), ('sim:camera_rate', '15.0'),
-        ('ball_position', '[0.5, 0.0, 0.03]'), ('ros_args', '-r __ns:=/arm1 --log-level debug'))
-    assert options.keys_arguments == ('-p', 'step_deg:=2.0', '-p', 'step_mm:=5.0',
-                                      '-r', '__ns:=/arm1', '--log-level', 'debug')
-    assert parse_args(['gui:=true', '--help']).help
+        ('robot_model', 'ur3'), ('camera_rate', '15.0'), ('namespace', '/arm1'),
+        ('params_file', '/tmp/p.yaml'))
+    assert options.keys_arguments == ('-r', '__ns:=/arm1', '-p', 'step_deg:=2.0',
+                                      '--log-level', 'debug')
+    assert parse_args(['gui:=true', '--help'], KNOWN).help
 
 
-@pytest.mark.parametrize('arg', ['--gui', 'robot_model', ':=3', 'sim::=3', ':x:=3'])
+def test_a_parameter_that_is_no_launch_argument_is_refused_with_a_suggestion():
+    with pytest.raises(UsageError, match=r"'camera_rte' is not an argument of graph.launch.py "
+                                         r'\(did you mean camera_rate\?\); .*params_file'):
+        parse_args(['camera_rte:=15'], KNOWN)
+    with pytest.raises(UsageError, match="'frames_dir' is not an argument"):
+        parse_args(['frames_dir:=/tmp/f'], KNOWN)
+
+
+@pytest.mark.parametrize('arg', ['--gui', 'robot_model', ':=3', 'sim:gui:=3'])
 def test_bad_arguments_are_refused(arg):
-    with pytest.raises(UsageError, match='argument|expected'):
-        parse_args([arg])
+    with pytest.raises(UsageError, match='argument'):
+        parse_args([arg], KNOWN)
+
+
+def test_the_screen_filter_keeps_warnings_errors_and_raw_output():
+    def record(name, level, message):
+        return logging.LogRecord(name, level, __file__, 1, message, None, None)
+
+    assert not warnings_and_errors(record('sim-1-stderr', logging.INFO,
+                                          '[sim-1] [INFO] [1.0] [ur_rg2_sim]: simulating'))
+    assert not warnings_and_errors(record('motion-3-stdout', logging.INFO,
+                                          '[motion-3] [DEBUG] [1.0] [ur_rg2_motion]: x'))
+    assert warnings_and_errors(record('sim-1-stderr', logging.INFO,
+                                      '[sim-1] [WARN] [1.0] [ur_rg2_sim]: protective stop'))
+    assert warnings_and_errors(record('sim-1-stderr', logging.INFO,
+                                      '[sim-1] [ERROR] [1.0] [ur_rg2_sim]: failed'))
+    assert warnings_and_errors(record('sim-1-stderr', logging.INFO,
+                                      '[sim-1] Traceback (most recent call last):'))
+    assert not warnings_and_errors(record('launch', logging.INFO, 'process started'))
+    assert not warnings_and_errors(record('launch', logging.WARNING,
+                                          'user interrupted with ctrl-c (SIGINT)'))
+    assert warnings_and_errors(record('launch', logging.ERROR, 'process has died'))
+    assert warnings_and_errors(record('graph.launch.py', logging.ERROR, 'sim exited'))
 
 
 def test_run_help_and_bad_arguments():
@@ -129,8 +155,12 @@ def test_run_help_and_bad_arguments():
                            capture_output=True, text=True, timeout=60)
     assert shown.returncode == 0
     assert shown.stdout.startswith('usage: scripts/run')
-    assert 'NODE:NAME:=VALUE' in shown.stdout
+    assert 'params_file:=YOUR_FILE' in shown.stdout
     refused = subprocess.run([sys.executable, '-m', 'ur_rg2_bringup.run', 'robot_model=ur3'],
                              capture_output=True, text=True, timeout=60)
     assert refused.returncode == 2
     assert "unknown argument 'robot_model=ur3'" in refused.stderr
+    refused = subprocess.run([sys.executable, '-m', 'ur_rg2_bringup.run', 'ball_radius:=0.05'],
+                             capture_output=True, text=True, timeout=60)
+    assert refused.returncode == 2
+    assert "'ball_radius' is not an argument of graph.launch.py" in refused.stderr

@@ -14,10 +14,15 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, qos_profile_sensor_data
 from sensor_msgs.msg import Image
 from std_srvs.srv import Trigger
-from test_bringup import become_terminal_session_leader, open_terminal, running
-from ur_rg2_bringup.graph import KEYS, NODES
+from test_bringup import ROOT, become_terminal_session_leader, open_terminal, running
+import yaml
 
-ROOT = Path(__file__).resolve().parents[1]
+# The graph's nodes: launch's process name and the ROS node name; keys beside them.
+NODES = {'sim': 'ur_rg2_sim', 'vision': 'ur_rg2_vision', 'motion': 'ur_rg2_motion',
+         'viewer': 'ur_rg2_viewer'}
+KEYS = 'ur_rg2_teleop'
+PARAMS_FILE = ROOT / 'ros2_ws/src/ur_rg2_bringup/config/graph.yaml'
+_STARTED = re.compile(r'\[INFO\] \[(\w+)-\d+\]: process started with pid \[(\d+)\]')
 
 
 def nodes_ready(probe: Node, interactive: bool) -> bool:
@@ -26,8 +31,20 @@ def nodes_ready(probe: Node, interactive: bool) -> bool:
     Stopping the graph after that tests a running graph, not one still starting.
     """
     services = {name for name, _ in probe.get_service_names_and_types()}
-    return all(f'/{node.node_name}/list_parameters' in services
-               for node in (*NODES, KEYS) if interactive or node is not KEYS)
+    names = [*NODES.values(), *([KEYS] if interactive else [])]
+    return all(f'/{name}/list_parameters' in services for name in names)
+
+
+def assert_every_node_stopped_cleanly(output: str) -> None:
+    """Each node launch started finished cleanly, and none outlived the graph."""
+    started = dict(_STARTED.findall(output))
+    assert set(started) == set(NODES), output
+    for name, pid in started.items():
+        assert re.search(rf'\[{name}-\d+\]: process has finished cleanly', output), output
+        assert not running(int(pid)), f'{name} outlived the graph'
+    assert 'process has died' not in output
+    assert 'failed to terminate' not in output
+    assert 'Traceback' not in output
 
 
 def test_headless_graph_takes_options_and_stops_on_sigterm(ros_graph, tmp_path):
@@ -41,15 +58,18 @@ def test_headless_graph_takes_options_and_stops_on_sigterm(ros_graph, tmp_path):
                               qos_profile_sensor_data)
     save_frame = probe.create_client(Trigger, 'vision/save_frame')
     frames = tmp_path / 'frames'
+    # Parameters that are no launch argument: in a copy of the shipped parameters file.
+    params = yaml.safe_load(PARAMS_FILE.read_text())
+    params['/**/ur_rg2_sim']['ros__parameters'].update(camera_width=320, camera_height=240)
+    params['/**/ur_rg2_vision']['ros__parameters']['frames_dir'] = str(frames)
+    params_file = tmp_path / 'graph.yaml'
+    params_file.write_text(yaml.safe_dump(params))
     log_path = tmp_path / 'run.log'
     with log_path.open('w') as log:
-        # No terminal on stdin: headless. The first option goes to every node (only sim
-        # declares it), the second to sim alone, frames_dir reaches vision, port the viewer.
-        # The last two no node takes: a typo, and a parameter of another node.
+        # No terminal on stdin: headless.
         run = subprocess.Popen(
-            [str(ROOT / 'scripts/run'), 'camera_width:=320', 'camera_height:=240',
-             'sim:camera_rate:=10.0', f'frames_dir:={frames}', 'port:=0', 'camera_rte:=15.0',
-             'vision:camera_rate:=5.0'],
+            [str(ROOT / 'scripts/run'), 'camera_rate:=10.0', 'port:=0',
+             f'params_file:={params_file}'],
             stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=ros_graph.env)
     try:
         # The first run of scripts/run in a fresh clone installs the environment first.
@@ -65,31 +85,14 @@ def test_headless_graph_takes_options_and_stops_on_sigterm(ros_graph, tmp_path):
         assert str(frames) in future.result().message
 
         wait_for(lambda: nodes_ready(probe, interactive=False), 30.0, 'all nodes')
-        reported = [line for line in log_path.read_text().splitlines() if 'declare' in line]
-        assert reported == [
-            "[WARNING] [graph.launch.py]: no node declares parameter 'camera_rte' "
-            '(did you mean camera_rate?): ignored',
-            "[WARNING] [graph.launch.py]: ur_rg2_vision does not declare parameter "
-            "'camera_rate': ignored"]
-        pids = {name: int(pid) for name, pid in re.findall(
-            r'\[INFO\] \[(\w+)-\d+\]: process started with pid \[(\d+)\]',
-            log_path.read_text())}
-        assert set(pids) == {node.name for node in NODES}
-
         run.send_signal(signal.SIGTERM)
         assert run.wait(timeout=30) == 0, log_path.read_text()
     finally:
         run.kill()
     output = log_path.read_text()
     assert 'no terminal on standard input' in output
-    # Every node stopped cleanly on the first SIGINT launch sent it.
-    for name in pids:
-        assert re.search(rf'\[{name}-\d+\]: process has finished cleanly', output), output
-    assert 'process has died' not in output
-    assert 'failed to terminate' not in output
-    assert 'Traceback' not in output
-    for name, pid in pids.items():
-        assert not running(pid), f'{name} outlived the graph'
+    # Every node stopped cleanly on the first SIGINT launch sent it; headless, on the screen.
+    assert_every_node_stopped_cleanly(output)
 
 
 @pytest.mark.parametrize('quit_key', [b'p', b'\x03'], ids=['p', 'ctrl-c'])
@@ -118,21 +121,21 @@ def test_in_a_terminal_keys_runs_in_the_foreground_and_quitting_stops_all(
     finally:
         os.close(controller)
         os.close(terminal)
-    output = log_path.read_text()
-    assert 'keyboard teleop' in output
-    assert 'bringup: keys quit: stopping the graph' in output
-    assert 'process has died' not in output
-    assert 'Traceback' not in output
-    for name, pid in re.findall(r'\[INFO\] \[(\w+)-\d+\]: process started with pid \[(\d+)\]',
-                                output):
-        assert re.search(rf'\[{name}-\d+\]: process has finished cleanly', output), output
-        assert not running(int(pid)), f'{name} outlived the graph'
+    screen = log_path.read_text()
+    assert 'keyboard teleop' in screen
+    # keys' screen: keys' own lines, the log's path at start and on exit, nothing routine.
+    log_files = re.findall(r'^bringup: the log of every node is in (\S+)$', screen, re.MULTILINE)
+    assert len(log_files) == 1, screen
+    assert f'bringup: graph stopped; its log: {log_files[0]}' in screen
+    for routine in ('[INFO]', 'ctrl-c (SIGINT)', 'process started', 'Traceback'):
+        assert routine not in screen, screen
+    assert_every_node_stopped_cleanly(Path(log_files[0]).read_text())
 
 
 def test_a_node_that_dies_is_named_with_its_error_on_the_last_line(ros_graph, tmp_path):
     log_path = tmp_path / 'run.log'
     with log_path.open('w') as log:
-        run = subprocess.Popen([str(ROOT / 'scripts/run'), 'robot_model:=ur7', 'port:=0'],
+        run = subprocess.Popen([str(ROOT / 'scripts/run'), 'camera_rate:=fast', 'port:=0'],
                                stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT,
                                env=ros_graph.env)
     try:
@@ -141,9 +144,8 @@ def test_a_node_that_dies_is_named_with_its_error_on_the_last_line(ros_graph, tm
         run.kill()
     output = log_path.read_text()
     # The sim's own FATAL line, launch's stop reason, the others stopping, then the summary.
-    last = output.splitlines()[-1]
-    assert re.fullmatch(r"bringup: sim exited with code 2: \[FATAL\] \[[\d.]+\] \[ur_rg2_sim\]: "
-                        r".*robot_model.*'ur7'.*", last), output
-    assert output.count(last.split(': ', 2)[2]) == 3  # the sim's, launch's, bringup's
-    assert 'sim exited with code 2' in output
+    assert re.search(r"\[sim-\d+\] \[FATAL\] .*\[ur_rg2_sim\]: invalid parameter: "
+                     r".*'camera_rate'.*'fast'", output), output
+    assert '[ERROR] [graph.launch.py]: sim exited with code 2; stopping the graph' in output
+    assert output.splitlines()[-1] == 'bringup: sim exited with code 2', output
     assert 'Traceback' not in output

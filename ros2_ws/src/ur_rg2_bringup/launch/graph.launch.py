@@ -1,129 +1,89 @@
-"""The UR + RG2 node graph: sim, vision, motion and viewer (``use_sim:=false``: without sim).
+"""The UR + RG2 node graph: sim, vision, motion and viewer, and the 3D view on request.
 
-    ros2 launch ur_rg2_bringup graph.launch.py [NAME:=VALUE ...] [NODE:NAME:=VALUE ...]
+    ros2 launch ur_rg2_bringup graph.launch.py [ARGUMENT:=VALUE ...]
 
-Every parameter a node declares is a launch argument of the same name, routed to the nodes
-that declare it (``ros2 launch ur_rg2_bringup graph.launch.py --show-args`` lists them);
-``NODE:NAME:=VALUE`` sets a parameter of one node (``sim:ball_radius:=0.05``). A name that no
-node declares is reported. The keyboard teleop is not started here: it needs a terminal of its
-own (``ros2 run ur_rg2_teleop keys``), and ``ros2 run ur_rg2_bringup graph`` (``scripts/run``)
-runs this file with keys in the foreground.
-
-A node that exits on its own stops the graph: launch logs which node, how it ended and the
-last error it logged, and shuts down with that reason. Ctrl-C stops every node (SIGINT, then
-SIGTERM after ``sigterm_timeout`` s, then SIGKILL).
+``--show-args`` lists the arguments. Every node's parameters have their defaults in
+``config/graph.yaml`` of this package; ``params_file:=FILE`` uses another file, and the
+arguments below override the file. The keyboard teleop is not started here: it needs a terminal
+(``ros2 run ur_rg2_teleop keys``, or ``ros2 run ur_rg2_bringup graph`` for both).
+A node that dies (a non-zero exit or a signal) ends the graph, saying which node and how.
 """
 
-import re
-import shlex
-import signal
-
 from launch import LaunchContext, LaunchDescription
-from launch.actions import (
-    DeclareLaunchArgument,
-    EmitEvent,
-    OpaqueFunction,
-    RegisterEventHandler,
-    Shutdown,
-)
-from launch.event_handlers import OnProcessExit, OnProcessIO, OnProcessStart, OnShutdown
-from launch.events import matches_action
-from launch.events.process import ProcessExited, ProcessIO, SignalProcess
-from launch.events.shutdown import Shutdown as ShutdownEvent
+from launch.actions import DeclareLaunchArgument, Shutdown
+from launch.conditions import IfCondition
+from launch.events.process import ProcessExited
 import launch.logging
+from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
 from launch_ros.actions import Node
-from ur_rg2_bringup.graph import (
-    NAMESPACE_ARGUMENT,
-    PARAMETER_ARGUMENTS,
-    ROS_ARGS_ARGUMENT,
-    USE_SIM_ARGUMENT,
-    describe_exit,
-    graph_nodes,
-    route_parameters,
-)
+from launch_ros.substitutions import FindPackageShare
+from ur_rg2_bringup.graph import describe_exit
 
-# An error in a ROS log line, as rcutils prints it, once colour codes are removed.
-_ERROR_LINE = re.compile(r'\[(ERROR|FATAL)\]')
-_COLOR_CODE = re.compile(r'\x1b\[[0-9;]*m')
+TRUE_FALSE = ['true', 'false']
 
 
 def generate_launch_description() -> LaunchDescription:
-    """Declare the arguments; the nodes are made once their values are known."""
-    arguments = [DeclareLaunchArgument(argument.name, default_value='',
-                                       description=argument.description)
-                 for argument in PARAMETER_ARGUMENTS]
-    arguments.append(DeclareLaunchArgument(USE_SIM_ARGUMENT[0], default_value='true',
-                                           description=USE_SIM_ARGUMENT[1],
-                                           choices=['true', 'false', 'True', 'False']))
-    arguments += [DeclareLaunchArgument(name, default_value='', description=description)
-                  for name, description in (NAMESPACE_ARGUMENT, ROS_ARGS_ARGUMENT)]
-    return LaunchDescription([*arguments, OpaqueFunction(function=_graph)])
+    """Return the launch arguments, the nodes and what ends the graph."""
+    arguments = [
+        DeclareLaunchArgument(
+            'use_sim', default_value='true', choices=TRUE_FALSE,
+            description='Start the simulator; false for a real arm and camera whose drivers '
+                        'provide its topics and actions'),
+        DeclareLaunchArgument(
+            'robot_model', default_value='ur5', choices=['ur5', 'ur3'],
+            description='UR arm model the sim simulates'),
+        DeclareLaunchArgument(
+            'gui', default_value='false', choices=TRUE_FALSE,
+            description="Open pybullet's GUI window (needs a display)"),
+        DeclareLaunchArgument(
+            'camera_rate', default_value='30.0',
+            description='Camera frame rate, Hz of simulation time; 0 turns the camera off'),
+        DeclareLaunchArgument(
+            'port', default_value='8080',
+            description='TCP port of the viewer, http://127.0.0.1:PORT/; 0: any free port'),
+        DeclareLaunchArgument(
+            'namespace', default_value='',
+            description='Namespace of every node and its topics (empty: none)'),
+        DeclareLaunchArgument(
+            'view3d', default_value='false', choices=TRUE_FALSE,
+            description='Start the 3D view (ur_rg2_tools view3d)'),
+        DeclareLaunchArgument(
+            'params_file',
+            default_value=PathJoinSubstitution(
+                [FindPackageShare('ur_rg2_bringup'), 'config', 'graph.yaml']),
+            description="Parameters YAML of every node (the default: this package's)"),
+    ]
+    params_file = LaunchConfiguration('params_file')
+    nodes = [
+        _node('ur_rg2_sim', 'sim', 'ur_rg2_sim', [params_file, {
+            'robot_model': LaunchConfiguration('robot_model'),
+            'gui': LaunchConfiguration('gui'),
+            'camera_rate': LaunchConfiguration('camera_rate'),
+        }], condition=IfCondition(LaunchConfiguration('use_sim'))),
+        _node('ur_rg2_vision', 'vision', 'ur_rg2_vision', [params_file]),
+        _node('ur_rg2_motion', 'motion', 'ur_rg2_motion', [params_file]),
+        _node('ur_rg2_vision', 'viewer', 'ur_rg2_viewer', [params_file, {
+            'port': LaunchConfiguration('port'),
+        }]),
+        _node('ur_rg2_tools', 'view3d', 'ur_rg2_view3d', [params_file],
+              condition=IfCondition(LaunchConfiguration('view3d'))),
+    ]
+    return LaunchDescription([*arguments, *nodes])
 
 
-def _graph(context: LaunchContext) -> list:
-    logger = launch.logging.get_logger('graph.launch.py')
-    given = {name: value for name, value in context.launch_configurations.items()
-             if value != ''}
-    nodes = graph_nodes(given[USE_SIM_ARGUMENT[0]])
-    ros_arguments, unknown = route_parameters(given, nodes)
-    for message in unknown:
-        logger.warning(f'{message}: ignored')
-    extra = shlex.split(given.get(ROS_ARGS_ARGUMENT[0], ''))
-    last_errors: dict[str, str] = {}
-    started: list[Node] = []
-    actions: list = []
-    for spec in nodes:
-        node = Node(package=spec.package, executable=spec.executable, name=spec.node_name,
-                    namespace=given.get(NAMESPACE_ARGUMENT[0], ''), output='screen',
-                    ros_arguments=ros_arguments[spec.name] + extra)
-        actions += [
-            node,
-            RegisterEventHandler(OnProcessStart(
-                target_action=node, on_start=lambda _event, _context, node=node: started.append(
-                    node))),
-            RegisterEventHandler(OnProcessIO(
-                target_action=node,
-                on_stdout=lambda event, name=spec.name: _remember_error(event, name, last_errors),
-                on_stderr=lambda event, name=spec.name: _remember_error(event, name, last_errors),
-            )),
-            RegisterEventHandler(OnProcessExit(
-                target_action=node,
-                on_exit=lambda event, context, name=spec.name: _stop_graph(
-                    event, context, name, last_errors, logger),
-            )),
-        ]
-    # On SIGINT launch sends its nodes nothing, trusting the terminal's Ctrl-C to have reached
-    # them too; a SIGINT to launch alone (a script, a test harness, a service manager) would
-    # then stop them only by SIGTERM after sigterm_timeout. So every node gets SIGINT here;
-    # one that had it from the terminal already takes the second in its stride.
-    actions.append(RegisterEventHandler(OnShutdown(
-        on_shutdown=lambda event, _context: _interrupt(event, started))))
-    return actions
+def _node(package: str, executable: str, name: str, parameters: list, condition=None) -> Node:
+    """Return one node of the graph; its exit on its own ends the graph."""
+    return Node(package=package, executable=executable, name=name,
+                namespace=LaunchConfiguration('namespace'), parameters=parameters,
+                output='screen', condition=condition, on_exit=_end_graph)
 
 
-def _interrupt(event: ShutdownEvent, started: list[Node]) -> list | None:
-    """On a SIGINT to launch, SIGINT to every node started (launch signals no unstarted one)."""
-    if not event.due_to_sigint:
+def _end_graph(event: ProcessExited, context: LaunchContext) -> list | None:
+    """Shut the graph down when a node dies, saying which one and how."""
+    # Exit 0 is a node stopping on request: a terminal's Ctrl-C reaches every node at once,
+    # and launch may hear of their exits before its own SIGINT.
+    if context.is_shutdown or event.returncode == 0:
         return None
-    return [EmitEvent(event=SignalProcess(signal_number=signal.SIGINT,
-                                          process_matcher=matches_action(node)))
-            for node in started]
-
-
-def _remember_error(event: ProcessIO, name: str, last_errors: dict[str, str]) -> None:
-    text = _COLOR_CODE.sub('', event.text.decode(errors='replace'))
-    for line in text.splitlines():
-        if _ERROR_LINE.search(line):
-            last_errors[name] = line.strip()
-
-
-def _stop_graph(event: ProcessExited, context: LaunchContext, name: str,
-                last_errors: dict[str, str], logger) -> list | None:
-    """Shut the graph down when a node ends on its own, saying which one and why."""
-    if context.is_shutdown:
-        return None
-    reason = f'{name} {describe_exit(event.returncode)}'
-    if name in last_errors:
-        reason += f': {last_errors[name]}'
-    logger.error(f'{reason}; stopping the graph')
+    reason = f'{event.action.node_executable} {describe_exit(event.returncode)}'
+    launch.logging.get_logger('graph.launch.py').error(f'{reason}; stopping the graph')
     return [Shutdown(reason=reason)]

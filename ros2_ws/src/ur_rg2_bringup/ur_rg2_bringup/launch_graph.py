@@ -1,14 +1,19 @@
 """graph.launch.py in launch's LaunchService, with an exit status that says how the graph ended.
 
-What ``ros2 launch ur_rg2_bringup graph.launch.py ARGS`` does, for the ``graph`` executable:
-``ros2 launch`` exits 0 whatever ended the graph, while a command a user scripts around should
-exit 1 when a node died. Usage: ``python -m ur_rg2_bringup.launch_graph [NAME:=VALUE ...]``.
+What ``ros2 launch --noninteractive ur_rg2_bringup graph.launch.py ARGS`` does, for the
+``graph`` executable: ``ros2 launch`` exits 0 whatever ended the graph, while a command a user
+scripts around should exit 1 when a node died. With ``--quiet`` (keys in the terminal) the
+screen shows warnings and errors only; everything goes to the launch log file, whose path is
+printed at start and on exit.
+Usage: ``python -m ur_rg2_bringup.launch_graph [--quiet] [NAME:=VALUE ...]``.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+import logging
 import os
+import re
 import sys
 
 from ament_index_python.packages import get_package_share_directory
@@ -16,10 +21,13 @@ from launch import LaunchDescription, LaunchService
 from launch.actions import IncludeLaunchDescription, RegisterEventHandler
 from launch.event_handlers import OnShutdown
 from launch.launch_description_sources import PythonLaunchDescriptionSource
+import launch.logging
 
 # Shutdown reasons that are a normal end of the graph, in launch's own words: a SIGINT (what
 # the graph executable sends to stop it), or nothing left to run.
 NORMAL_ENDS = ('ctrl-c (SIGINT)', 'idle')
+# A node's routine console line, as rcutils prints it (launch puts "[sim-1] " before it).
+_ROUTINE_LINE = re.compile(r'(\x1b\[[0-9;]*m)*\[(INFO|DEBUG)\]')
 
 
 def graph_launch_file() -> str:
@@ -28,10 +36,34 @@ def graph_launch_file() -> str:
                         'graph.launch.py')
 
 
-def run_graph(launch_arguments: Sequence[str]) -> int:
+def warnings_and_errors(record: logging.LogRecord) -> bool:
+    """Screen filter: pass what is not routine (a node's INFO/DEBUG line, launch's INFO)."""
+    if record.name.endswith(('-stdout', '-stderr')):  # a node's output, a line per record
+        return not _ROUTINE_LINE.match(record.getMessage().split('] ', 1)[-1])
+    # Only the graph executable sends launch a SIGINT, and it says why itself.
+    return record.levelno >= logging.WARNING and 'ctrl-c (SIGINT)' not in record.getMessage()
+
+
+def quiet_screen() -> str:
+    """Send every output line to the launch log file, nodes' warnings and errors to the screen.
+
+    Return the log file's path. Call before the launch file is loaded: launch reads its
+    ``OVERRIDE_LAUNCH_PROCESS_OUTPUT`` when each node is made.
+    """
+    # launch's 'log': both streams to the file, stderr (where rcutils logs) to the screen too.
+    os.environ['OVERRIDE_LAUNCH_PROCESS_OUTPUT'] = 'log'
+    launch.logging.launch_config.get_screen_handler().addFilter(warnings_and_errors)
+    return os.path.join(launch.logging.launch_config.log_dir, 'launch.log')
+
+
+def run_graph(launch_arguments: Sequence[str], quiet: bool = False) -> int:
     """Run the graph until it stops; return 1 (saying why last) if a node ended it, else 0."""
+    log_file = quiet_screen() if quiet else None
+    if log_file:
+        print(f'bringup: the log of every node is in {log_file}', file=sys.stderr, flush=True)
     reasons: list[str] = []
-    service = LaunchService(argv=list(launch_arguments))
+    # Non-interactive: launch itself sends each node SIGINT, no terminal's Ctrl-C reaches them.
+    service = LaunchService(argv=list(launch_arguments), noninteractive=True)
     service.include_launch_description(LaunchDescription([
         RegisterEventHandler(OnShutdown(
             on_shutdown=lambda event, _context: reasons.append(event.reason))),
@@ -40,6 +72,8 @@ def run_graph(launch_arguments: Sequence[str]) -> int:
             launch_arguments=[tuple(argument.split(':=', 1)) for argument in launch_arguments]),
     ]))
     returncode = service.run()
+    if log_file:
+        print(f'bringup: graph stopped; its log: {log_file}', file=sys.stderr, flush=True)
     if reasons and reasons[0] not in NORMAL_ENDS:
         print(f'bringup: {reasons[0]}', file=sys.stderr, flush=True)
         return 1
@@ -47,4 +81,6 @@ def run_graph(launch_arguments: Sequence[str]) -> int:
 
 
 if __name__ == '__main__':
-    sys.exit(run_graph(sys.argv[1:]))
+    arguments = sys.argv[1:]
+    quiet = '--quiet' in arguments
+    sys.exit(run_graph([a for a in arguments if a != '--quiet'], quiet))

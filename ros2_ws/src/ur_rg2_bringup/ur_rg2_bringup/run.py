@@ -1,16 +1,16 @@
 """``ros2 run ur_rg2_bringup graph`` (``scripts/run``): graph.launch.py, keys in this terminal.
 
-The launch file does the work of a launch file: it starts, watches and stops the nodes, and
-reports a node's death and unknown parameters. What is left here is what a launch file cannot
-do, in a parent process of launch:
+The launch file does the work of a launch file: it starts, watches and stops the nodes. What is
+left here is what a launch file cannot do, in a parent process of launch:
 
 - keys needs the terminal itself (raw input, its own screen), so it runs beside launch as a
-  plain child in the foreground, and when it quits the graph stops with it;
+  plain child in the foreground, and when it quits the graph stops with it; the other nodes'
+  routine lines go to launch's log file, not to keys' screen;
 - launch stops its nodes in order on SIGINT only (on SIGTERM it exits at once and leaves them
   running), so a SIGTERM or SIGHUP from a service manager or a closed terminal reaches launch
   as SIGINT; a second stop signal kills launch and its nodes at once; and launch, in a session
   of its own, gets SIGINT should this process be killed outright, so no node outlives it;
-- the exit status: 1 when a node died, the last line saying which and why (launch_graph).
+- the exit status: 1 when a node died, the last line saying which and how (launch_graph).
 """
 
 from __future__ import annotations
@@ -18,46 +18,46 @@ from __future__ import annotations
 from collections.abc import Sequence
 import ctypes
 from dataclasses import dataclass
+import difflib
 import os
-import shlex
 import signal
 import subprocess
 import sys
 
 from ament_index_python.packages import get_package_prefix
+from launch.launch_description_sources import get_launch_description_from_python_launch_file
 
-from ur_rg2_bringup.graph import KEYS, NODES, ROS_ARGS_ARGUMENT, describe_exit
+from ur_rg2_bringup.graph import KEYS, describe_exit
+from ur_rg2_bringup.launch_graph import graph_launch_file
 
 USAGE = """\
-usage: scripts/run [--headless] [NAME:=VALUE ...] [NODE:NAME:=VALUE ...] [--ros-args ARGS ...]
+usage: scripts/run [--headless] [ARGUMENT:=VALUE ...] [--ros-args ARGS ...]
        (in a ROS install: ros2 run ur_rg2_bringup graph ...)
 
 Start the UR + RG2 node graph with ROS 2's launch (the launch file graph.launch.py of
 ur_rg2_bringup: sim, vision, motion, viewer: open http://127.0.0.1:8080/) and, when standard
 input is a terminal, the keyboard teleop (keys) in the foreground. Quit with p or Ctrl-C in
-keys; everything stops with it. Without a terminal (piped, CI, a service manager) the graph
-runs headless until SIGINT or SIGTERM. If a node dies, the others are stopped, the last line
-says which node and why, and the exit status is 1. Nodes are stopped with SIGINT, then SIGTERM
-after 5 s, then SIGKILL.
+keys; everything stops with it. keys' terminal shows keys' own lines and the other nodes'
+warnings and errors; all their lines go to a log file whose path is printed at start and on
+exit. Without a terminal (piped, CI, a service manager) the graph runs headless, every line on
+the screen, until SIGINT or SIGTERM. If a node dies, the others are stopped, the last line says
+which node and how, and the exit status is 1. Nodes are stopped with SIGINT, then SIGTERM after
+5 s, then SIGKILL.
 
-parameters:
-  NAME:=VALUE       a launch argument of graph.launch.py: a parameter for every node that
-                    declares it (e.g. robot_model:=ur3 gui:=true camera_rate:=15.0
-                    frames_dir:=/tmp/f step_deg:=2.0); one that no node declares is reported
-  NODE:NAME:=VALUE  a parameter for one node only; NODE is {short} or a ROS node name
-                    (e.g. sim:camera_rate:=15.0, ur_rg2_teleop:step_deg:=2.0)
-  VALUE is YAML, as for ros2 run: true, 15.0, ur3, "[0.5, 0.0, 0.03]"
-  ros2 launch ur_rg2_bringup graph.launch.py --show-args lists the launch arguments.
+arguments:
+  ARGUMENT:=VALUE   an argument of graph.launch.py: use_sim, robot_model, gui, camera_rate,
+                    port, namespace, view3d, params_file (e.g. robot_model:=ur3 gui:=true
+                    camera_rate:=15.0); ros2 launch ur_rg2_bringup graph.launch.py --show-args
+                    describes them. Any other parameter of the graph's nodes goes in a
+                    parameters file: copy the package's config/graph.yaml (ros2 pkg prefix
+                    ur_rg2_bringup, then share/ur_rg2_bringup/config/) and pass
+                    params_file:=YOUR_FILE.
 
 options:
   --headless        do not start keys even when standard input is a terminal
-  --ros-args ARGS   everything after this goes to every node unchanged
-                    (e.g. --ros-args -r __ns:=/arm1 --log-level debug)
+  --ros-args ARGS   everything after this goes to keys (e.g. --ros-args -p step_deg:=2.0)
   -h, --help        show this help and exit
-""".format(short=', '.join(node.name for node in (*NODES, KEYS)))
-
-# keys' own parameters: a NAME:=VALUE of these goes to keys, not to the launch file.
-KEYS_PARAMETERS = frozenset({'step_deg', 'step_mm', 'use_sim_time'})
+"""
 
 
 class UsageError(Exception):
@@ -72,21 +72,28 @@ class Options:
     help: bool = False
     launch_arguments: tuple[tuple[str, str], ...] = ()
     keys_arguments: tuple[str, ...] = ()
-    """ROS arguments for keys (its parameters, then everything after ``--ros-args``)."""
+    """ROS arguments for keys (the graph's namespace, then everything after ``--ros-args``)."""
 
 
-def parse_args(argv: Sequence[str]) -> Options:
-    """Turn ``scripts/run`` arguments into launch arguments and keys' ROS arguments."""
+def launch_argument_names() -> list[str]:
+    """Return the names of graph.launch.py's arguments, as its DeclareLaunchArguments say."""
+    description = get_launch_description_from_python_launch_file(graph_launch_file())
+    return [argument.name for argument in description.get_launch_arguments()]
+
+
+def parse_args(argv: Sequence[str], known: Sequence[str]) -> Options:
+    """Turn ``scripts/run`` arguments into launch arguments and keys' ROS arguments.
+
+    ``known`` are the launch file's argument names; any other NAME:=VALUE is refused.
+    """
     headless = False
     launch_arguments: list[tuple[str, str]] = []
-    keys_parameters: list[str] = []
-    ros_args: list[str] = []
+    keys_arguments: list[str] = []
     args = list(argv)
     while args:
         arg = args.pop(0)
         if arg == '--ros-args':
-            ros_args = args
-            launch_arguments.append((ROS_ARGS_ARGUMENT[0], shlex.join(args)))
+            keys_arguments += args
             break
         if arg in ('-h', '--help'):
             return Options(help=True)
@@ -94,19 +101,19 @@ def parse_args(argv: Sequence[str]) -> Options:
             headless = True
         elif ':=' in arg and not arg.startswith('-'):
             name, value = arg.split(':=', 1)
-            node, sep, parameter = name.rpartition(':')
-            if not parameter or (sep and not node):
-                raise UsageError(f'{arg!r}: expected NAME:=VALUE or NODE:NAME:=VALUE')
-            for_keys = node in (KEYS.name, KEYS.node_name) or (
-                not sep and parameter in KEYS_PARAMETERS)
-            if for_keys:
-                keys_parameters += ['-p', f'{parameter}:={value}']
-            if not for_keys or (not sep and parameter == 'use_sim_time'):
-                launch_arguments.append((name, value))
+            if name not in known:
+                close = difflib.get_close_matches(name, known, n=1)
+                raise UsageError(
+                    f'{name!r} is not an argument of graph.launch.py'
+                    + (f' (did you mean {close[0]}?)' if close else '')
+                    + '; set other parameters in a file given as params_file:=FILE')
+            launch_arguments.append((name, value))
+            if name == 'namespace' and value:
+                keys_arguments[:0] = ['-r', f'__ns:={value}']
         else:
             raise UsageError(f'unknown argument {arg!r}')
     return Options(headless=headless, launch_arguments=tuple(launch_arguments),
-                   keys_arguments=(*keys_parameters, *ros_args))
+                   keys_arguments=tuple(keys_arguments))
 
 
 def keys_executable() -> str:
@@ -142,6 +149,7 @@ class _Graph:
         # decides how launch stops.
         self._launch = subprocess.Popen(
             [sys.executable, '-m', 'ur_rg2_bringup.launch_graph',
+             *(['--quiet'] if interactive else []),
              *(f'{name}:={value}' for name, value in options.launch_arguments)],
             start_new_session=True, preexec_fn=_prepare_launch_child)
         self._keys: subprocess.Popen | None = None
@@ -171,8 +179,6 @@ class _Graph:
                     keys_failure = f'keys {describe_exit(self._keys.returncode)}'
                 self._keys = None
                 if not self._stop_requests:
-                    # launch then says "user interrupted with ctrl-c (SIGINT)": this is why.
-                    print('bringup: keys quit: stopping the graph', file=sys.stderr, flush=True)
                     self._on_stop_signal(signal.SIGINT, None)
         self._stop_keys()
         if keys_failure is not None:
@@ -194,7 +200,7 @@ class _Graph:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the graph; return the process exit status."""
     try:
-        options = parse_args(sys.argv[1:] if argv is None else argv)
+        options = parse_args(sys.argv[1:] if argv is None else argv, launch_argument_names())
     except UsageError as exc:
         print(f'bringup: {exc}\n(scripts/run --help shows the usage)', file=sys.stderr)
         return 2
@@ -204,8 +210,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     interactive = not options.headless and sys.stdin.isatty()
     if not interactive:
         why = '--headless' if options.headless else 'no terminal on standard input'
-        print(f'bringup: {why}: running {", ".join(n.name for n in NODES)} headless; '
-              'stop with Ctrl-C or SIGTERM', file=sys.stderr, flush=True)
+        print(f'bringup: {why}: running the graph headless; stop with Ctrl-C or SIGTERM',
+              file=sys.stderr, flush=True)
     return _Graph(options, interactive).run()
 
 

@@ -137,6 +137,8 @@ def test_the_screen_filter_keeps_warnings_errors_and_raw_output():
                                           '[sim-1] [INFO] [1.0] [ur_rg2_sim]: simulating'))
     assert not warnings_and_errors(record('motion-3-stdout', logging.INFO,
                                           '[motion-3] [DEBUG] [1.0] [ur_rg2_motion]: x'))
+    assert not warnings_and_errors(record('sim-1-stderr', logging.INFO,
+                                          '[sim-1] pybullet build time: Jan 29 2025 23:17:20'))
     assert warnings_and_errors(record('sim-1-stderr', logging.INFO,
                                       '[sim-1] [WARN] [1.0] [ur_rg2_sim]: protective stop'))
     assert warnings_and_errors(record('sim-1-stderr', logging.INFO,

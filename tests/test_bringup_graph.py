@@ -95,17 +95,21 @@ def test_headless_graph_takes_options_and_stops_on_sigterm(ros_graph, tmp_path):
     assert_every_node_stopped_cleanly(output)
 
 
-@pytest.mark.parametrize('quit_key', [b'p', b'\x03'], ids=['p', 'ctrl-c'])
+@pytest.mark.parametrize('quit_key', [b'p', b'\x03'], ids=['pick-then-p', 'ctrl-c'])
 def test_in_a_terminal_keys_runs_in_the_foreground_and_quitting_stops_all(
         ros_graph, tmp_path, quit_key):
+    """The terminal shows keys' lines only; with p, after a pick (g), whose goals end quietly."""
     probe = ros_graph.node('probe')
+    positions: list[PointStamped] = []
+    probe.create_subscription(PointStamped, 'ball/position', positions.append,
+                              qos_profile_sensor_data)
     controller, terminal = open_terminal()
     before = termios.tcgetattr(terminal)
     log_path = tmp_path / 'run.log'
     try:
         with log_path.open('w') as log:
             run = subprocess.Popen(
-                [str(ROOT / 'scripts/run'), 'port:=0', 'camera_rate:=5.0'], stdin=terminal,
+                [str(ROOT / 'scripts/run'), 'port:=0', 'camera_rate:=10.0'], stdin=terminal,
                 stdout=log, stderr=subprocess.STDOUT, env=ros_graph.env,
                 preexec_fn=become_terminal_session_leader)
         try:
@@ -113,6 +117,11 @@ def test_in_a_terminal_keys_runs_in_the_foreground_and_quitting_stops_all(
                      180.0, 'all nodes, keys too')
             assert run.poll() is None, log_path.read_text()
             wait_for(lambda: 'keyboard teleop' in log_path.read_text(), 10.0, 'the key table')
+            if quit_key == b'p':
+                wait_for(lambda: positions, 60.0, 'the ball seen')
+                os.write(controller, b'g')
+                wait_for(lambda: '/pick_ball: ' in log_path.read_text(), 120.0,
+                         "the pick's outcome line")
             os.write(controller, quit_key)
             assert run.wait(timeout=20) == 0, log_path.read_text()
         finally:
@@ -129,6 +138,9 @@ def test_in_a_terminal_keys_runs_in_the_foreground_and_quitting_stops_all(
     assert f'bringup: graph stopped; its log: {log_files[0]}' in screen
     for routine in ('[INFO]', 'ctrl-c (SIGINT)', 'process started', 'Traceback'):
         assert routine not in screen, screen
+    assert not re.search(r'^\[(sim|vision|motion|viewer)-\d+\]', screen, re.MULTILINE), screen
+    if quit_key == b'p':
+        assert '/pick_ball: done: picked the ball' in screen, screen
     assert_every_node_stopped_cleanly(Path(log_files[0]).read_text())
 
 

@@ -26,8 +26,9 @@ import launch.logging
 # Shutdown reasons that are a normal end of the graph, in launch's own words: a SIGINT (what
 # the graph executable sends to stop it), or nothing left to run.
 NORMAL_ENDS = ('ctrl-c (SIGINT)', 'idle')
-# A node's routine console line, as rcutils prints it (launch puts "[sim-1] " before it).
-_ROUTINE_LINE = re.compile(r'(\x1b\[[0-9;]*m)*\[(INFO|DEBUG)\]')
+# A node's routine console line, as rcutils prints it (launch puts "[sim-1] " before it), or
+# the banner pybullet prints on stderr when it is imported.
+_ROUTINE_LINE = re.compile(r'(\x1b\[[0-9;]*m)*\[(INFO|DEBUG)\]|pybullet build time: ')
 
 
 def graph_launch_file() -> str:

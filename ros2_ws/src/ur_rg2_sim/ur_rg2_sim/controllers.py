@@ -250,11 +250,12 @@ class Controllers:
         if self._closed:
             return  # shutting down: rosout may be gone, and the exit says so anyway
         # One call site per severity: rclpy refuses a call site whose severity changes.
+        # A goal that ends as asked is routine (a policy sends ten a second): DEBUG.
         message = f'{action} goal {ended.status}: {ended.message}'
         if ended.status == 'aborted' and not ended.logged:
             self._logger.warning(message)
         else:
-            self._logger.info(message)
+            self._logger.debug(message)
 
 
 def _trajectory_goal(request: FollowJointTrajectory.Goal):

@@ -1,0 +1,1 @@
+"""Recording and replaying the graph as MCAP (ROS 2 profile), and the scene in 3D in a browser."""

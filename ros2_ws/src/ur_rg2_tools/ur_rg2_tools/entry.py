@@ -1,0 +1,23 @@
+"""Console-script entry points: see ur_rg2_common.entry (a stop while loading is quiet)."""
+
+from ur_rg2_common.entry import run_main
+
+
+def record() -> int:
+    """Run the recorder (ur_rg2_tools.record_node)."""
+    return run_main('ur_rg2_tools.record_node')
+
+
+def replay() -> int:
+    """Run the player (ur_rg2_tools.replay_node)."""
+    return run_main('ur_rg2_tools.replay_node')
+
+
+def recover() -> int:
+    """Recover the complete chunks of a cut-short recording (ur_rg2_tools.recover)."""
+    return run_main('ur_rg2_tools.recover')
+
+
+def view3d() -> int:
+    """Run the 3D view (ur_rg2_tools.view3d_node)."""
+    return run_main('ur_rg2_tools.view3d_node')

@@ -207,3 +207,47 @@ def test_a_target_out_of_reach_keeps_the_target_and_joints(make):
     beyond = np.array([0.78, 0.78, 0.38])  # the step takes it to (0.8, 0.8, 0.4): 1.1 m out
     target, joints = move_target(env.arm, beyond, current, np.ones(3))
     assert np.array_equal(target, beyond) and np.array_equal(joints, current)
+
+
+def test_free_finger_travel_is_skipped_but_a_grasp_is_stepped(make):
+    env = make(PICK_ID)
+    env.reset(options={'ball_position': BALL})  # the TCP starts well above the ball
+    world = env.unwrapped.world
+    steps = world._steps
+    world.close_gripper()
+    assert world.skip_free_finger_travel()
+    assert world._steps == steps and world.gripper_stopped()
+    assert world.gripper_opening() == pytest.approx(0.0, abs=1e-6)
+
+    # The open fingers round the ball: closing them is a grasp, stepped in full.
+    env.reset(options={'ball_position': BALL, 'tcp_position': [*BALL, BALL_Z + 0.003]})
+    world.close_gripper()
+    assert not world.skip_free_finger_travel()
+    observation, _, _, _, info = env.step(np.array([0, 0, 0, -1.0]))
+    assert world.gripper_holds_object()
+    assert observation['observation'][6] == pytest.approx(2 * BALL_RADIUS, abs=0.005)
+
+
+def test_a_grasped_start_holds_the_ball_between_the_fingers(make):
+    env = make(PICK_ID)
+    observation, info = env.reset(seed=3, options={'grasped': True})
+    world = env.unwrapped.world
+    assert world.gripper_holds_object()
+    tcp, ball, goal = (observation['observation'][0:3], observation['achieved_goal'],
+                       observation['desired_goal'])
+    assert np.linalg.norm(ball - tcp) < 0.02
+    assert goal[2] - 0.15 - 0.005 <= ball[2] <= goal[2] + 0.005  # from the floor to the goal
+    for _ in range(5):  # held by the fingers' friction up to the goal
+        observation, _, _, _, info = env.step(np.array([0, 0, 1.0, -1.0]))
+    assert info['is_success']
+    assert observation['achieved_goal'][2] > BALL_Z + 0.1
+
+
+def test_a_share_of_episodes_start_grasped():
+    env = gym.make(PICK_ID, grasped_share=0.5)
+    try:
+        held = [env.reset(seed=seed)[0]['achieved_goal'][2] > BALL_Z + 0.005
+                or env.unwrapped.world.gripper_holds_object() for seed in range(20)]
+    finally:
+        env.close()
+    assert 3 <= sum(held) <= 17

@@ -51,6 +51,10 @@ TARGET_LOW = (-0.8, -0.8, None)
 TARGET_HIGH = (0.8, 0.8, 0.4)
 OBSERVATION_BOUND = 10.0  # m, m/s
 GRIPPER_TIMEOUT = 1.5  # s: the RG2 closes its full 110 mm in under 1 s
+# The TCP this far above the ball's centre grasps it low between the pads, as the motion
+# node's pick does (the scripted demonstrator's grasp, and the grasped starts').
+GRASP_HEIGHT = 0.003  # m
+GRASP_GAP = 0.002  # m: a grasped start's fingers close from this far apart round the ball
 
 
 _DOWN = gripper_down((0.0, 0.0, 0.0), 0.0)
@@ -313,10 +317,55 @@ class PickEnv(UrRg2Env):
     def _sizes(self) -> tuple[int, int]:
         return 16, 3
 
+    def __init__(self, robot_model: str = 'ur5', grasped_share: float = 0.0) -> None:
+        super().__init__(robot_model)
+        self._settings['grasped_share'] = self.grasped_share = grasped_share
+        self._cubic = np.arange(1, self.substeps + 1) / self.substeps
+        limits = [self.world.limits[name] for name in ARM_JOINTS]
+        self._lower = np.array([limit.lower for limit in limits])
+        self._upper = np.array([limit.upper for limit in limits])
+
     def _start_episode(self, ball: np.ndarray) -> None:
         self._closed = False
         self._ball = ball
         self._goal = pick_goal(ball)
+
+    def reset(self, *, seed: int | None = None,
+              options: dict[str, Any] | None = None) -> tuple[dict, dict]:
+        """Start an episode (see :meth:`UrRg2Env.reset`); some with the ball already held.
+
+        ``grasped_share`` of the episodes (none with ``options``) start with the ball between
+        the closed fingers, somewhere between the floor and the goal above where it lay
+        (Fetch's trick: the lift is then met early in training). Option ``grasped`` (bool)
+        chooses by hand.
+        """
+        observation, info = super().reset(seed=seed, options=options)
+        grasped = (options or {}).get(
+            'grasped', not options and self.np_random.uniform() < self.grasped_share)
+        if grasped:
+            self._start_grasped()
+            observation, info = self._observe(), {'is_success': self._is_success()}
+        return observation, info
+
+    def _start_grasped(self) -> None:
+        """Put the ball (and the TCP over its centre) up to LIFT_GOAL up, the RG2 closed on it."""
+        ball = self._goal - (0.0, 0.0, LIFT_GOAL)
+        ball[2] += self.np_random.uniform(0.0, LIFT_GOAL)
+        tcp = ball + (0.0, 0.0, GRASP_HEIGHT)
+        joints = start_joints(self.arm, tcp)
+        world = self.world
+        world.set_arm_positions(dict(zip(ARM_JOINTS, joints.tolist())))
+        world.set_gripper_opening(2 * BALL_RADIUS + GRASP_GAP)
+        world.set_ball_position((ball + self._base).tolist())
+        world.close_gripper()
+        self._closed = True
+        for _ in range(round(GRIPPER_TIMEOUT * CONTROL_RATE * self.substeps)):
+            world.step()
+            if world.gripper_stopped():
+                break
+        self._joints, self._target = joints, tcp
+        self._tcp = np.array(world.link_pose()[0]) - self._base
+        self._ball = np.array(world.body_position(world.ball)) - self._base
 
     def _command(self, action: np.ndarray) -> None:
         closed = bool(action[3] < 0.0)
@@ -337,22 +386,24 @@ class PickEnv(UrRg2Env):
         TCP where the policy sent it: fed the speed forward and left to run on (Reach's way),
         the arm overshot a fast descent by up to 2 cm, closing the fingers over the ball's top.
         """
-        change = joints - previous
-        for k in range(1, self.substeps + 1):
-            s = k / self.substeps
-            positions = previous + change * (s * s * (3.0 - 2.0 * s))
-            velocities = change * (6.0 * s * (1.0 - s) * CONTROL_RATE)
-            self.world.set_arm_targets(dict(zip(ARM_JOINTS, positions.tolist())),
-                                       dict(zip(ARM_JOINTS, velocities.tolist())))
-            self.world.step()
-        if self._gripper_moved:
+        # The whole cubic at once (one NumPy computation, clamped to the joint limits once).
+        s = self._cubic
+        positions = np.clip(previous + np.outer(s * s * (3.0 - 2.0 * s), joints - previous),
+                            self._lower, self._upper).tolist()
+        velocities = np.outer(6.0 * s * (1.0 - s) * CONTROL_RATE, joints - previous).tolist()
+        world = self.world
+        for position, velocity in zip(positions, velocities):
+            world.drive_arm(position, velocity)
+            world.step()
+        if self._gripper_moved and not world.skip_free_finger_travel():
             # A step that opens or closes the RG2 lasts until its fingers stop (on the ball,
             # or at the end of their travel), as a gripper action's result comes then: the
             # policy node waits for it too. So no step's observation is of fingers half-way,
-            # and a policy needs no waiting of its own for the grasp.
+            # and a policy needs no waiting of its own for the grasp. Fingers that nothing can
+            # be in the way of get there at once (the same end, without 100 physics steps).
             for _ in range(round(GRIPPER_TIMEOUT * CONTROL_RATE * self.substeps)):
-                self.world.step()
-                if self.world.gripper_stopped():
+                world.step()
+                if world.gripper_stopped():
                     break
 
     def _observe(self) -> dict[str, np.ndarray]:

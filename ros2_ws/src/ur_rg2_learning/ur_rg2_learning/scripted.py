@@ -11,11 +11,10 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from ur_rg2_learning.envs import MAX_STEP
+from ur_rg2_learning.envs import GRASP_HEIGHT, MAX_STEP
 
-# The TCP this far above the ball's centre grasps it low between the pads, as the motion
-# node's pick does; the approach comes down from APPROACH_HEIGHT once over the ball.
-GRASP_HEIGHT = 0.003  # m
+# The grasp (GRASP_HEIGHT over the ball's centre) is approached from APPROACH_HEIGHT once
+# over the ball.
 APPROACH_HEIGHT = 0.08  # m
 OVER = 0.005  # m: horizontally this near the ball the TCP is over it
 AT_GRASP = 0.005  # m: vertically this near the grasp height it closes

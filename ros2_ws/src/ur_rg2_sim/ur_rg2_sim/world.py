@@ -82,6 +82,8 @@ _FINGER_STOPPED_SPEED = 1e-3
 # The fingers' speed is measured over this long (s): the solver's jitter of a finger resting
 # at the end of its travel averages out.
 _FINGER_SPEED_WINDOW = 0.05
+# A body slower than this is at rest (m/s): free finger travel may be skipped past it.
+_BODY_AT_REST_SPEED = 0.005
 # Fingers stopped this far short of closed hold something (m of opening).
 _GRASP_MIN_OPENING = 0.002
 
@@ -151,6 +153,10 @@ class SimWorld:
         }
         self.joint_names = ARM_JOINTS + GRIPPER_JOINTS
         self._indices = [self._joint_index[name] for name in self.joint_names]
+        self._arm_indices = self._indices[:len(ARM_JOINTS)]
+        self._arm_efforts = [self.limits[name].effort for name in ARM_JOINTS]
+        self._arm_speeds = [self.limits[name].velocity for name in ARM_JOINTS]
+        self._finger_indices = [self._joint_index[name] for name in GRIPPER_JOINTS]
         self._link_name = {index: name for name, index in self._link_index.items()}
         self._link_name[-1] = self._p.getBodyInfo(self.robot)[0].decode()
         self._movable = [i for i in range(self._p.getNumJoints(self.robot))
@@ -260,6 +266,19 @@ class SimWorld:
                 targetVelocity=velocities[name] if velocities else 0.0)
         return applied
 
+    def drive_arm(self, positions: Sequence[float], velocities: Sequence[float]) -> None:
+        """Set every arm joint's target and fed-forward speed, ``ARM_JOINTS`` order, unclamped.
+
+        For callers that clamp once for many physics steps (the learning environments, each
+        substep of a step): no dicts, no clamping, one motor call per joint.
+        """
+        call = self._p.setJointMotorControl2
+        for index, effort, speed, position, velocity in zip(
+                self._arm_indices, self._arm_efforts, self._arm_speeds, positions, velocities):
+            call(self.robot, index, pybullet.POSITION_CONTROL, targetPosition=position,
+                 force=effort, maxVelocity=speed, targetVelocity=velocity)
+        self.arm_targets.update(zip(ARM_JOINTS, positions))
+
     def move_arm(self, targets: Mapping[str, float]) -> dict[str, float]:
         """Move the named arm joints to new targets (clamped) together; return the targets set.
 
@@ -304,6 +323,13 @@ class SimWorld:
             self._p.resetJointState(self.robot, self._joint_index[name], RG2_MAX_OPENING / 2,
                                     0.0)
         self.command_gripper(RG2_MAX_OPENING)
+
+    def set_gripper_opening(self, opening: float) -> None:
+        """Teleport the fingers ``opening`` (m, clamped) apart, at rest, and hold them there."""
+        opening = min(max(opening, 0.0), RG2_MAX_OPENING)
+        for index in self._finger_indices:
+            self._p.resetJointState(self.robot, index, opening / 2, 0.0)
+        self.command_gripper(opening)
 
     def open_gripper(self) -> None:
         """Drive the fingers to the full 110 mm opening."""
@@ -360,6 +386,53 @@ class SimWorld:
                                       for a, b in zip(positions, before))
             self._finger_probe = (self._steps, positions)
         return not self._finger_moving
+
+    def skip_free_finger_travel(self, margin: float = 0.005,
+                                still: float = _BODY_AT_REST_SPEED) -> bool:
+        """Put the fingers at their target at once if nothing can be in their way; say if so.
+
+        Nothing can be when every other body is at rest (slower than ``still``, m/s) and no
+        body, nor a robot link the fingers may touch, comes within ``margin`` of a finger
+        sliding its remaining travel. Convex shapes' distance shrinks at most by the travel
+        times the cosine between the slide and their closest points' normal: a floor under
+        fingers sliding level stays as far. Their travel is then the motors' free run to the
+        target: stepping through it (the RG2's full stroke takes some 100 steps at 80 Hz)
+        changes nothing else. The learning environments wait for the fingers this way; a grasp
+        (the ball between the pads) is always stepped.
+        """
+        p = self._p
+        fingers = self._finger_indices
+        positions = [state[0] for state in p.getJointStates(self.robot, fingers)]
+        travel = max(abs(self.gripper_target / 2 - x) for x in positions)
+        (left, _), (right, _) = [state[:2] for state in p.getLinkStates(self.robot, fingers)]
+        slide = [a - b for a, b in zip(left, right)]
+        length = math.sqrt(sum(x * x for x in slide)) or 1.0
+        slide = [x / length for x in slide]
+
+        def clear(points) -> bool:
+            return all(point[8] - travel * abs(sum(n * d for n, d in zip(point[7], slide)))
+                       > margin for point in points)
+
+        reach = travel + margin
+        for i in range(p.getNumBodies()):
+            body = p.getBodyUniqueId(i)
+            if body == self.robot:
+                continue
+            speed = p.getBaseVelocity(body)[0]
+            if speed[0] ** 2 + speed[1] ** 2 + speed[2] ** 2 > still * still:
+                return False
+            for finger in fingers:
+                if not clear(p.getClosestPoints(self.robot, body, reach, linkIndexA=finger)):
+                    return False
+        for a, b in self._self_collision_links:
+            if (a in fingers or b in fingers) and not clear(
+                    p.getClosestPoints(self.robot, self.robot, reach, a, b)):
+                return False
+        for index in fingers:
+            p.resetJointState(self.robot, index, self.gripper_target / 2, 0.0)
+        self._finger_probe = (self._steps, [self.gripper_target / 2] * len(positions))
+        self._finger_moving = False
+        return True
 
     def gripper_holds_object(self) -> bool:
         """Return whether the closed fingers are held apart by something between them."""

@@ -22,8 +22,7 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image, JointState
 from std_srvs.srv import Trigger
 from ur_rg2_common.camera_pose import optical_rotation
-from ur_rg2_common.contract import ARM_JOINTS
-from ur_rg2_sim.sim_node import IMAGE_QOS
+from ur_rg2_common.contract import ARM_JOINTS, IMAGE_QOS
 from ur_rg2_sim.world import SimWorld, WorldConfig
 
 SIM_BIN = os.path.join(os.path.dirname(sys.executable), 'sim')

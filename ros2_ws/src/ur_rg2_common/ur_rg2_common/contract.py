@@ -1,7 +1,7 @@
 """Names and QoS profiles of the graph's public interface that its nodes share.
 
 The sim (or a real robot's driver) serves these and the motion, policy, teleop and viewer nodes
-(and the tests and benchmarks) use them; ``../shared/INTERFACES.md`` is where they are defined.
+(and the tests and benchmarks) use them; ``docs/interfaces.md`` is where they are defined.
 Only rclpy, so any client can import this without loading the simulation.
 """
 
@@ -29,5 +29,10 @@ GRIPPER_ACTION = 'gripper_controller/gripper_cmd'
 LATCHED_QOS = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL,
                          reliability=ReliabilityPolicy.RELIABLE)
+# Camera images and what is drawn on them. Large (640x480 rgb8 is 900 KiB) and across
+# processes: best-effort readers lose most UDP fragments, so reliable with a short queue; a
+# slow reader then costs a publisher a few frames of memory, never its pace.
+IMAGE_QOS = QoSProfile(depth=5, history=HistoryPolicy.KEEP_LAST,
+                       reliability=ReliabilityPolicy.RELIABLE)
 TF_QOS = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST,
                     reliability=ReliabilityPolicy.RELIABLE)

@@ -31,6 +31,12 @@ def pose_matrix(position: Sequence[float], quaternion: Sequence[float]) -> np.nd
     return m
 
 
+def transform_matrix(transform) -> np.ndarray:
+    """Return the 4x4 matrix of a geometry_msgs/Transform."""
+    t, r = transform.translation, transform.rotation
+    return pose_matrix((t.x, t.y, t.z), (r.x, r.y, r.z, r.w))
+
+
 def quaternion_from_matrix(matrix: np.ndarray) -> tuple[float, float, float, float]:
     """Return the xyzw unit quaternion (w >= 0) of a rotation or pose matrix."""
     m = np.asarray(matrix, dtype=float)[:3, :3]
@@ -90,8 +96,7 @@ class TransformBuffer:
                     > 1e-3 or self._above(child, parent)):
                 rejected += 1
                 continue
-            self.set_transform(parent, child, pose_matrix((t.x, t.y, t.z),
-                                                          (r.x, r.y, r.z, r.w)))
+            self.set_transform(parent, child, transform_matrix(stamped.transform))
         return rejected
 
     def _above(self, frame: str, below: str) -> bool:

@@ -11,18 +11,17 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from concurrent.futures import TimeoutError as FutureTimeout
 import math
 import time
-from typing import Optional
 
 from builtin_interfaces.msg import Duration, Time
 from control_msgs.action import FollowJointTrajectory, GripperCommand
-from rclpy.action import ActionServer, CancelResponse, GoalResponse
+from rclpy.action import CancelResponse, GoalResponse
 from rclpy.action.server import ServerGoalHandle
 from rclpy.node import Node
-from rclpy.task import Task
+from ur_rg2_common.action_server import WorkerActionServer
 from ur_rg2_common.contract import ARM_JOINTS, GRIPPER_ACTION, TRAJECTORY_ACTION
 
 from ur_rg2_sim.drivers import ArmDriver, ArmRun, Ended, GripperDriver, GripperRun
-from ur_rg2_sim.simulation import NS, SimulationLoop
+from ur_rg2_sim.simulation import NS, SimulationLoop, SimulationUnavailableError, answer
 from ur_rg2_sim.trajectory import (
     INVALID_GOAL,
     INVALID_JOINTS,
@@ -37,38 +36,6 @@ from ur_rg2_sim.world import SimWorld
 FEEDBACK_PERIOD = 0.05  # s of wall time: 20 Hz, twice the contract's minimum
 # How long a worker waits for the simulation thread to take a goal (it takes one step).
 _SIM_ANSWER_TIMEOUT = 10.0  # s
-
-
-class SimulationUnavailableError(RuntimeError):
-    """The simulation thread did not take a goal (stopped, or too slow to answer)."""
-
-
-class _WorkerActionServer(ActionServer):
-    """An action server whose execute callbacks run on a thread pool.
-
-    rclpy schedules them as executor tasks on the spinning thread, where a callback that waits
-    would hold up joint jogs and every other callback of the node (and one that awaits is
-    polled by the executor in a busy loop). Goal, cancel and result requests stay on the
-    spinning thread: they are quick.
-    """
-
-    def __init__(self, *args, workers: ThreadPoolExecutor, **kwargs) -> None:
-        super().__init__(*args, **kwargs)
-        self._workers = workers
-
-    def notify_execute(self, goal_handle: ServerGoalHandle,
-                       execute_callback: Optional[Callable] = None) -> None:
-        """Run the goal's execute callback on a worker thread."""
-        callback = execute_callback or self._execute_callback
-        if callback is not None:
-            # rclpy's own coroutine around the callback sets the goal's result.
-            self._workers.submit(self._run, Task(self._execute_goal, (callback, goal_handle)))
-
-    def _run(self, task: Task) -> None:
-        task()
-        error = task.exception()  # fetched, so that rclpy does not print it again on exit
-        if error is not None and self._node.context.ok():
-            self._node.get_logger().error(f'action goal failed: {error!r}')
 
 
 class Controllers:
@@ -90,9 +57,9 @@ class Controllers:
         common = dict(goal_callback=lambda _: GoalResponse.ACCEPT,
                       cancel_callback=self._on_cancel, workers=self._workers)
         self._servers = [
-            _WorkerActionServer(node, FollowJointTrajectory, TRAJECTORY_ACTION,
+            WorkerActionServer(node, FollowJointTrajectory, TRAJECTORY_ACTION,
                                 self._execute_trajectory, **common),
-            _WorkerActionServer(node, GripperCommand, GRIPPER_ACTION, self._execute_gripper,
+            WorkerActionServer(node, GripperCommand, GRIPPER_ACTION, self._execute_gripper,
                                 **common),
         ]
 
@@ -190,14 +157,7 @@ class Controllers:
 
     def _on_sim(self, function: Callable[[SimWorld], object]):
         """Run ``function`` on the simulation thread and return its result (or raise its error)."""
-        future = self._sim.call(function)
-        try:
-            return future.result(timeout=_SIM_ANSWER_TIMEOUT)
-        except FutureTimeout:
-            raise SimulationUnavailableError('the simulation did not take the goal in '
-                                             'time') from None
-        except RuntimeError as error:  # the simulation stopped
-            raise SimulationUnavailableError(str(error)) from None
+        return answer(self._sim.call(function), _SIM_ANSWER_TIMEOUT)
 
     def _follow(self, goal_handle: ServerGoalHandle, run: ArmRun | GripperRun,
                 cancel: Callable[[SimWorld, object], None],

@@ -7,6 +7,7 @@ on this thread between two physics steps and returns a ``concurrent.futures.Futu
 
 from collections.abc import Callable
 from concurrent.futures import Future
+from concurrent.futures import TimeoutError as FutureTimeout
 from dataclasses import dataclass
 import queue
 import threading
@@ -22,6 +23,20 @@ NS = 1_000_000_000
 _MAX_LAG = 0.25  # s
 # /clock is published at this rate of simulation time at least (the contract's minimum).
 CLOCK_RATE = 100.0
+
+
+class SimulationUnavailableError(RuntimeError):
+    """The simulation thread gave no answer: it stopped, or did not answer in time."""
+
+
+def answer(future: Future, timeout: float):
+    """Return the result of a :meth:`SimulationLoop.call`; raise SimulationUnavailableError."""
+    try:
+        return future.result(timeout=timeout)
+    except FutureTimeout:
+        raise SimulationUnavailableError('the simulation did not answer in time') from None
+    except RuntimeError as error:  # the loop fails pending calls so when it stops
+        raise SimulationUnavailableError(str(error)) from None
 
 
 class Outputs(Protocol):

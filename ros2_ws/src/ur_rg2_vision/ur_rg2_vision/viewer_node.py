@@ -24,13 +24,12 @@ from rcl_interfaces.srv import GetParameters
 from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 from rclpy.parameter import parameter_value_to_python
-from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.task import Future
 from sensor_msgs.msg import Image, JointState
 from std_msgs.msg import Bool, String
 from tf2_msgs.msg import TFMessage
 from ur_rg2_common.camera_pose import optical_rotation
-from ur_rg2_common.contract import LATCHED_QOS, WORLD_FRAME
+from ur_rg2_common.contract import IMAGE_QOS, LATCHED_QOS, WORLD_FRAME
 from ur_rg2_common.parameters import ParameterSpec, declare_parameters
 from ur_rg2_common.spin import run_node
 from ur_rg2_common.tf_buffer import FrameLookupError, TransformBuffer, transform_point
@@ -89,11 +88,8 @@ class ViewerNode(Node):
         quality = values['jpeg_quality']
 
         self._hub = FrameHub(quality)
-        # Reliable: across processes best effort loses most 640x480 frames here. Depth 5 as
-        # the sim and vision use: a busy moment (GIL, a loaded machine) must not drop frames;
-        # the hub keeps only the newest anyway.
-        self.create_subscription(Image, image_topic, self._on_image,
-                                 QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE))
+        # The hub keeps only the newest frame anyway.
+        self.create_subscription(Image, image_topic, self._on_image, IMAGE_QOS)
         self.create_subscription(JointState, 'joint_states', self._on_joint_state, 10)
         self.create_subscription(PointStamped, 'ball/position', self._on_ball, 10)
         # The camera and base_link are fixed in the world: /tf_static has all the ball needs.

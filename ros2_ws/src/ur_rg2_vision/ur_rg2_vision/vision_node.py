@@ -28,10 +28,10 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
+from ur_rg2_common.contract import IMAGE_QOS
 from ur_rg2_common.parameters import ParameterSpec, declare_parameters
 from ur_rg2_common.spin import keep_freed_memory, run_node
 
@@ -49,9 +49,6 @@ from ur_rg2_vision.ros_image import camera_matrix, image_to_depth, image_to_rgb,
 
 NODE_NAME = 'ur_rg2_vision'
 
-# Reliable, because across processes best effort loses most 640x480 frames (see docs/design.md);
-# a short keep-last queue, because a late frame is worth less than the next one.
-_IMAGE_QOS = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
 _PENDING_FRAMES = 4  # colour frames waiting for their depth (~130 ms at 30 Hz)
 _EARLY_DEPTHS = 4  # depth images that came before their colour image
 _WARN_PERIOD_S = 10.0  # a persisting input problem is logged again after this long
@@ -166,11 +163,11 @@ class VisionNode(Node):
         # All in the node's default, mutually exclusive callback group: one at a time, under
         # any executor. camera_info first: of messages ready together, it is taken first.
         self.create_subscription(CameraInfo, 'camera/color/camera_info', self._on_camera_info,
-                                 _IMAGE_QOS)
-        self.create_subscription(Image, 'camera/color/image_raw', self._on_color, _IMAGE_QOS)
-        self.create_subscription(Image, 'camera/depth/image_raw', self._on_depth, _IMAGE_QOS)
+                                 IMAGE_QOS)
+        self.create_subscription(Image, 'camera/color/image_raw', self._on_color, IMAGE_QOS)
+        self.create_subscription(Image, 'camera/depth/image_raw', self._on_depth, IMAGE_QOS)
         self._position_pub = self.create_publisher(PointStamped, 'ball/position', 10)
-        self._image_pub = self.create_publisher(Image, 'ball/image', _IMAGE_QOS)
+        self._image_pub = self.create_publisher(Image, 'ball/image', IMAGE_QOS)
         # The executor takes a triggered guard condition after the subscriptions ready with it.
         self._unpublished: list[_Frame] = []  # colour frames whose ball/image is due
         self._images_due = self.create_guard_condition(self._publish_images)

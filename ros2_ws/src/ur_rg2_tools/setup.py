@@ -7,7 +7,7 @@ setup(
     version='0.1.0',
     packages=find_packages(exclude=['test']),
     # The 3D view's page and the three.js / urdf-loader modules it runs (web/vendor/PROVENANCE.md).
-    package_data={package_name: ['web/*', 'web/vendor/*', 'web/vendor/*/*', 'web/vendor/*/*/*']},
+    package_data={package_name: ['web/**/*']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),

@@ -3,7 +3,6 @@
 import io
 import math
 import threading
-import time
 
 from conftest import wait_for
 import pytest
@@ -38,10 +37,12 @@ class Keys:
         return self.output.getvalue().splitlines()
 
 
-def stub_service(graph, name: str, success: bool, message: str, delay: float = 0.0):
-    """Serve a Trigger ``name`` answering (success, message) after ``delay`` s."""
+def stub_service(graph, name: str, success: bool, message: str,
+                 release: threading.Event | None = None):
+    """Serve a Trigger ``name`` answering (success, message), once ``release`` is set."""
     def serve(request, response):
-        time.sleep(delay)
+        if release is not None:
+            assert release.wait(30.0), f'{name}: the test never let the answer go'
         response.success, response.message = success, message
         return response
 
@@ -106,15 +107,16 @@ def test_quit_keys_end_the_loop(ros_graph):
 
 def test_services_are_called_without_blocking_and_answer_on_one_line(ros_graph):
     keys = Keys(ros_graph)
-    stub_service(ros_graph, 'reset', True, 'arm targets\nset to home', delay=1.0)
+    release = threading.Event()
+    stub_service(ros_graph, 'reset', True, 'arm targets\nset to home', release)
     stub_service(ros_graph, 'gripper/close', True, 'closed: nothing grasped')
     stub_service(ros_graph, 'gripper/open', False, 'fingers blocked')
     for name in ('reset', 'gripper/close', 'gripper/open'):
         client = keys.node._trigger_clients[name]  # the node's own view decides availability
         wait_for(client.service_is_ready, 10.0, f'{name} discovered')
-    started = time.monotonic()
-    keys.press('lty')
-    assert time.monotonic() - started < 0.5, 'the key loop waited for a service'
+    keys.press('lty')  # returns while reset has not answered yet: no key waits for one
+    assert not any(line.startswith('/reset') for line in keys.lines())
+    release.set()
     wait_for(lambda: len(keys.lines()) == 3, 10.0, 'three service results')
     assert sorted(keys.lines()) == [
         '/gripper/close: done: closed: nothing grasped',
@@ -143,7 +145,7 @@ def test_angles_are_shown_once_when_the_move_is_over(ros_graph):
         JointState, 'joint_states', 10)
     wait_for(lambda: publisher.get_subscription_count() > 0, 10.0, 'joint_states subscriber')
     stop = threading.Event()
-    state = {'pan': 0.0, 'speed': 0.0}
+    state = {'pan': 0.0, 'speed': 0.0, 'published': 0}
 
     def publish():
         while not stop.wait(0.01):
@@ -151,6 +153,7 @@ def test_angles_are_shown_once_when_the_move_is_over(ros_graph):
             msg.position = [state['pan'], -1.0, 0.5, 0.0, 0.0, 0.0, 0.02]
             msg.velocity = [state['speed'], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
             publisher.publish(msg)
+            state['published'] += 1
 
     thread = threading.Thread(target=publish)
     thread.start()
@@ -160,13 +163,16 @@ def test_angles_are_shown_once_when_the_move_is_over(ros_graph):
         assert keys.lines()[0].startswith('joint mode | pan   +0.0  lift  -57.3  elbow  +28.6')
         keys.press('q')
         state['speed'] = 1.0
-        time.sleep(0.1)
-        assert len(keys.lines()) == 1, 'angles shown while moving'
+        moving = state['published']
+        wait_for(lambda: state['published'] >= moving + 10, 10.0, '0.1 s of moving states')
         state.update(pan=math.radians(5.0), speed=0.0)
-        wait_for(lambda: len(keys.lines()) == 2, 10.0, 'the angles after the move')
+        wait_for(lambda: len(keys.lines()) >= 2, 10.0, 'the angles after the move')
+        # Shown while moving, the line would have the pan of then: +0.0.
         assert keys.lines()[1].startswith('joint mode | pan   +5.0  lift  -57.3')
         assert keys.lines()[1].endswith('(step 5)')
-        time.sleep(0.2)
+        # Three times the settle time of still states more: no second line for one move.
+        still = state['published']
+        wait_for(lambda: state['published'] >= still + 30, 10.0, '0.3 s of still states')
         assert len(keys.lines()) == 2, 'angles shown more than once per move'
     finally:
         stop.set()

@@ -86,9 +86,9 @@ def run_node(make_node: Callable[[], N], args: Optional[list[str]], logger_name:
             if blocking_group is not None:
                 executor.add_blocking_group(blocking_group)
             executor.add_node(node)
-            # Not executor.spin(): now and then (about 1 stop in 10 on a loaded machine) the
-            # executor slept on in its wait set after a signal had shut the context down. A
-            # bounded wait notices the shutdown within a quarter second whatever happens.
+            # Not executor.spin(): it may sleep on in its wait set after a signal has shut the
+            # context down (docs/design.md); a bounded wait notices the shutdown within
+            # SPIN_WAIT_S whatever happens.
             while rclpy.ok():
                 message = failure(node) if failure is not None else None
                 if message is not None:

@@ -61,10 +61,8 @@ class Camera:
         w, h = config.width, config.height
         self.fx = (w / 2) / math.tan(math.radians(config.hfov_deg) / 2)
         self.fy = self.fx  # square pixels
-        # Where TinyRenderer really puts the optical axis (measured: a small sphere on the
-        # axis renders at (w/2, h/2 - 1) in ROS pixel coordinates, not at the centre
-        # ((w-1)/2, (h-1)/2) of a symmetric frustum): it samples pixel i at i, not i + 0.5,
-        # and flips rows with an offset of one.
+        # Where TinyRenderer puts the optical axis, not the frustum's centre: it samples
+        # pixel i at i, not i + 0.5, and flips rows with an offset of one (docs/design.md).
         self.cx = w / 2
         self.cy = h / 2 - 1
         self._rotation = optical_rotation(config.position, config.look_at)
@@ -99,8 +97,7 @@ class Camera:
         depth_buffer = np.asarray(depth_buffer, dtype=np.float32).reshape(cfg.height, cfg.width)
         rgb = cv2.cvtColor(np.asarray(rgba, dtype=np.uint8).reshape(cfg.height, cfg.width, 4),
                            cv2.COLOR_RGBA2RGB)
-        # In place and with OpenCV's masked copy: numpy's broadcast np.where on the colour
-        # image took 7 ms a frame, this 1 ms. The buffer's 0-1 maps to NEAR_CLIP-FAR_CLIP.
+        # In place, for speed (docs/design.md). The buffer's 0-1 maps to NEAR_CLIP-FAR_CLIP.
         depth = depth_buffer * np.float32(-(FAR_CLIP - NEAR_CLIP))
         depth += np.float32(FAR_CLIP)
         np.divide(np.float32(FAR_CLIP * NEAR_CLIP), depth, out=depth)

@@ -36,9 +36,8 @@ EXTEND_STEP = 0.3
 # rad: samples are drawn this far around the box spanned by the start and the goal (and within
 # the joint limits): a way around an obstacle rarely needs a joint further out.
 SAMPLE_SLACK = np.pi / 2
-# Poses tried before giving up (each about 0.2 ms: this bounds a fruitless search to 2 s of
-# the simulation thread; a way found took up to 2,900 in 3,300 random walks), and tries at
-# cutting a corner of a path found.
+# Poses tried before giving up (bounds a fruitless search to about 2 s of the simulation
+# thread, docs/design.md), and tries at cutting a corner of a path found.
 MAX_CHECKS = 10_000
 SHORTCUT_TRIES = 40
 

@@ -3,22 +3,12 @@
 Plain Python, no ROS; runs on the simulation thread before every physics step, after the
 controllers have set the joints' targets.
 
-Why the arm used to wedge: the position motors push with their full torque (150 N·m at the
-UR5's shoulder and elbow) for as long as the target lies beyond an obstacle, so a link driven
-into the floor ends up pressed on it with 200-800 N. Friction on that contact is then more
-than the other joints' motors can overcome, and the RG2's 40 N finger motors, pressed on
-the floor, neither move nor settle. A reset does not help: the joints move independently,
-and the shortest move (the shoulder, back down) presses the link in again before the others
-have pulled it clear.
-
-So the arm is stopped at the touch, before the load builds up: whenever a link presses on an
-obstacle and the joints' targets would take it further in, steeply, the arm goes back a
-little the way it came and holds there (the targets become those positions). A target that
-moves the link away from the obstacle or along it is never held back, so every command that
-moves away is obeyed. A reset whose straight way home is blocked so plans a way around
-(``Homing``). With it go two fixes in the world (ur_rg2_sim.world): joint commands
-and reset move the joints together (``SimWorld.move_arm``), and a finger at its target counts
-as stopped, however the solver jitters its speed (``SimWorld.gripper_stopped``).
+The arm is stopped at the touch, before the load builds up (docs/design.md says why):
+whenever a link presses on an obstacle and the joints' targets would take it further in,
+steeply, the arm goes back a little the way it came and holds there (the targets become those
+positions). A target that moves the link away from the obstacle or along it is never held
+back, so every command that moves away is obeyed. A reset whose straight way home is blocked
+plans a way around (``Homing``).
 """
 
 from collections.abc import Callable, Mapping, Sequence
@@ -34,8 +24,7 @@ from ur_rg2_sim.world import Contact, SimWorld
 
 # A link is driven into an obstacle when it is sent into it at more than 30 degrees from the
 # surface (the sine of that); more shallowly it slides along it, as a reset from a grasp on
-# the floor scrapes the fingers over it (at about 16 degrees) and goes on home. Every wedge
-# of issue 21 came in at 40 degrees or more.
+# the floor scrapes the fingers over it and goes on home (docs/design.md).
 MIN_INCIDENCE = 0.5
 # Touching an obstacle and on its way somewhere, but stuck there (no arm joint faster than
 # this, rad/s) for this long (s of simulation time): stopped all the same.

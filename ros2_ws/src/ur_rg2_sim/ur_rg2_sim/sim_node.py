@@ -85,8 +85,8 @@ class SimNode(Node):
 
         self._sim = SimulationLoop(self._world, self, s.schedule(), self._make_camera(s))
         self._controllers = Controllers(self, self._sim)
-        # Where reset plans its way round, made now rather than at the first blocked reset:
-        # 33 MB (a pybullet client's own) taken at start-up, not in the middle of a run.
+        # Where reset plans its way round: a pybullet client of its own, made at start-up
+        # rather than in the middle of a run, at the first blocked reset.
         self._reset_model = CollisionModel(s.robot_model)
         # Reset's way home; a trajectory started since ends it (the others end it in
         # _command_arm).

@@ -1,12 +1,14 @@
 """The learned ball detector: train_detector -> evaluate_detector -> vision detector:=learned.
 
-A short training run on a tiny data set (rendered hard scenes, written as `dataset` writes
-them) exports a model that evaluate_detector reads back and the vision node serves; the model
+A short training run on a tiny data set (rendered detector scenes, written by
+``scripts/detector-data``'s scene_dataset) exports a model that evaluate_detector reads back
+and the vision node serves; the model
 shipped with the package finds a blue ball in the sim's scene and calls neither a red cube nor
 a flat red disc a ball; a missing or corrupt model directory stops the node at start-up with
 one clear line. The hard-set numbers are the benchmark's (``python -m bench detector``).
 """
 
+import json
 import os
 from pathlib import Path
 import re
@@ -22,11 +24,12 @@ from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 from ur_rg2_common.camera_pose import optical_rotation
 from ur_rg2_sim.sim_node import IMAGE_QOS
-from ur_rg2_vision.dataset import DatasetWriter, sphere_box, yolo_label
+from ur_rg2_vision import scene_dataset
+from ur_rg2_vision.dataset import COLOR_GROUPS, sphere_box, yolo_label
 from ur_rg2_vision.learned import MODEL_FILE, SETTINGS_FILE, BallModel, ModelError, box_detection
 from ur_rg2_vision.localize import locate_ball
 from ur_rg2_vision.ros_image import rgb_to_image
-from ur_rg2_vision.scenes import hard_scenes
+from ur_rg2_vision.scenes import detector_scenes, hard_scenes
 from ur_rg2_vision.vision_node import VisionNode
 
 BIN = Path(sys.executable).parent
@@ -58,26 +61,32 @@ def test_a_box_around_a_ball_gives_its_centre_through_the_depth():
 
 def test_short_training_exports_a_model_evaluate_reads_and_vision_serves(tmp_path, ros_graph):
     data, model = tmp_path / 'data', tmp_path / 'model'
-    writer = DatasetWriter(data, 0.25)
-    shots = list(hard_scenes(12, seed=3, ball_share=0.8))
-    for shot in shots:
-        label = None
-        if shot.centre is not None:
-            label = yolo_label(sphere_box(shot.centre, shot.radius, shot.k), 640, 480)
-        writer.write(shot.rgb, label)
+    scene_dataset.main(['--count', '12', '--out', str(data), '--seed', '3',
+                        '--val-fraction', '0.25'])
     trained = subprocess.run(
         [str(BIN / 'train_detector'), '--data', str(data), '--out', str(model), '--epochs', '2',
-         '--imgsz', '160'], capture_output=True, text=True, timeout=300)
+         '--imgsz', '160', '--crop', '96', '--batch', '4'],
+        capture_output=True, text=True, timeout=300)
     assert trained.returncode == 0, trained.stderr[-3000:]
+    assert re.search(r'train_detector: 2 epochs in [\d.]+ min \(load', trained.stdout)
     assert {MODEL_FILE, SETTINGS_FILE, 'training_curve.png', 'results.csv'} <= {
         p.name for p in model.iterdir()}
-    assert BallModel(model).input_size == (128, 160)  # 4:3 frames, sides of stride 32
+    loaded = BallModel(model)
+    assert loaded.input_size == (120, 160)  # 4:3 frames
+    settings = json.loads((model / SETTINGS_FILE).read_text())
+    assert 'Apache-2.0' in settings['licence'] and 'ultralytics' not in json.dumps(settings)
     evaluated = subprocess.run(
         [str(BIN / 'evaluate_detector'), '--model', str(model), '--data', str(data)],
         capture_output=True, text=True, timeout=120)
     assert evaluated.returncode == 0, evaluated.stderr
-    assert re.fullmatch(r'recall [\d.]+ precision [\d.]+ mAP50 [\d.]+ over 3 images\n',
-                        evaluated.stdout), evaluated.stdout
+    line = r'recall [\d.]+ precision [\d.]+ mAP50 [\d.]+ over 3 images'
+    lines = evaluated.stdout.splitlines()
+    assert lines[0].startswith('network alone') and re.fullmatch(f'  all: {line}', lines[1])
+    pipeline = lines.index(next(x for x in lines if x.startswith('node pipeline')))
+    assert re.fullmatch(f'  all: {line}, \\d+ false balls, 3D error median .*',
+                        lines[pipeline + 1]), lines
+    groups = [x.split(':')[0].strip() for x in lines[2:pipeline]]
+    assert groups and set(groups) <= set(COLOR_GROUPS), lines
     # The node runs it: every frame fed comes back annotated on ball/image.
     ros_graph.add(VisionNode(context=ros_graph.context, parameter_overrides=[
         Parameter('detector', value='learned'), Parameter('model_dir', value=str(model)),
@@ -87,7 +96,7 @@ def test_short_training_exports_a_model_evaluate_reads_and_vision_serves(tmp_pat
     publishers = [feeder.create_publisher(kind, topic, IMAGE_QOS) for kind, topic in (
         (CameraInfo, 'camera/color/camera_info'), (Image, 'camera/color/image_raw'),
         (Image, 'camera/depth/image_raw'))]
-    shot = shots[0]
+    shot = next(detector_scenes(1, seed=3)).shot
     header = Header(frame_id='camera_color_optical_frame')
     info = CameraInfo(header=header, width=640, height=480, k=shot.k.ravel().tolist())
     depth = Image(header=header, height=480, width=640, encoding='32FC1', step=640 * 4,
@@ -162,3 +171,39 @@ def test_a_missing_or_corrupt_model_dir_is_refused_at_start_up(tmp_path, breakag
     assert result.returncode == 1
     lines = [line for line in (result.stdout + result.stderr).splitlines() if line.strip()]
     assert len(lines) == 1 and 'cannot start' in lines[0] and str(model) in lines[0], lines
+
+
+def test_the_exported_decoding_gives_back_the_box_of_the_training_targets():
+    """targets() and Exported's decoding agree: a network that outputs its targets."""
+    torch = pytest.importorskip('torch')
+    from ur_rg2_learning.detector_net import STRIDE, Exported, targets
+    boxes = [(40.0, 30.0, 72.0, 54.0), None]
+    heat, regress, index = targets(boxes, 120, 160)
+
+    class Targets(torch.nn.Module):
+        def forward(self, images):
+            out = torch.zeros(len(boxes), 5, 120 // STRIDE, 160 // STRIDE)
+            out[:, 0] = torch.logit(torch.from_numpy(heat).clamp(1e-4, 1 - 1e-4))
+            for i, cell in enumerate(index):
+                if cell >= 0:
+                    out[i, 1:5].view(4, -1)[:, cell] = torch.from_numpy(regress[i])
+            return out
+
+    rows = Exported(Targets())(torch.zeros(2, 3, 120, 160)).numpy()
+    best = rows[0, :, rows[0, 4].argmax()]
+    assert np.allclose(best[:4], (56.0, 42.0, 32.0, 24.0), atol=1e-3) and best[4] > 0.99
+    assert rows[1, 4].max() < 0.01  # no ball: no peak over any threshold
+
+
+def test_detector_scenes_label_balls_of_every_colour_group():
+    shots = list(detector_scenes(12, seed=7))
+    assert [s.group for s in shots] == list(COLOR_GROUPS) * 2
+    labelled = [s for s in shots if s.box is not None]
+    assert len(labelled) >= 6
+    for sample in labelled:
+        u0, v0, u1, v1 = sample.box
+        assert 0 <= u0 < u1 <= 640 and 0 <= v0 < v1 <= 480, sample.box
+        assert sample.shot.centre is not None and sample.shot.visible > 0
+    for sample in shots:
+        if sample.box is None:
+            assert sample.shot.centre is None

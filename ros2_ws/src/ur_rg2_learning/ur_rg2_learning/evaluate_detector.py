@@ -2,24 +2,32 @@
 
 Runs the exported ONNX model as the ``vision`` node does (ONNX Runtime, no torch), or
 with ``--detector color`` the colour detector, on the validation images of a data set (its
-``data.yaml``; ``--split train`` for the others). A detection is right when its box overlaps
-a labelled ball's box by IoU >= 0.5; every image holds at most one ball.
+``data.yaml``; ``--split train`` for the others). First the network alone: a box over the
+model's threshold is right when it overlaps a labelled ball's box by IoU >= 0.5; every image
+holds at most one ball. Then the node's whole pipeline (the detector's candidates, the first
+that the depth confirms as a sphere gives the 3D centre): right when that centre is within the
+ball's radius of the true one. Each overall and per colour group (saturated, pastel, white,
+grey, dark, patterned); the pipeline and the groups need the depth and meta files that
+``scripts/detector-data`` (:mod:`ur_rg2_vision.scene_dataset`) writes beside the images.
 """
 
 from __future__ import annotations
 
 import argparse
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+import json
 from pathlib import Path
 import sys
 
 import cv2
 import numpy as np
-from ur_rg2_vision.detector import BallDetector
-from ur_rg2_vision.learned import BallModel, ModelError
+from ur_rg2_vision.detector import DEFAULT_MIN_RADIUS_PX, BallDetector
+from ur_rg2_vision.learned import BallModel, LearnedBallDetector, ModelError
 import yaml
 
 IOU = 0.5
+MIN_VISIBLE = 0.4  # of a ball's disc seen, for the pipeline to be expected to find it
+GROUPS = ('saturated', 'pastel', 'white', 'grey', 'dark', 'patterned')
 
 
 @dataclass
@@ -105,22 +113,99 @@ def color_boxes(detector: BallDetector, rgb: np.ndarray) -> list[tuple[float, ..
             for d in detector.detect(rgb)]
 
 
-def evaluate(boxes, pairs: list[tuple[Path, Path]]) -> Scores:
-    """Score ``boxes(rgb) -> [(u0, v0, u1, v1, score)]`` on (image, label) pairs."""
+def evaluate(boxes, pairs: list[tuple[Path, Path]], groups: dict[str, Scores] | None = None
+             ) -> Scores:
+    """Score ``boxes(rgb) -> [(u0, v0, u1, v1, score)]`` on (image, label) pairs.
+
+    ``groups``: also score each image in its colour group's entry (from the sample's meta),
+    added when missing.
+    """
     scores = Scores(ranked=[])
     for image_path, label_path in pairs:
         rgb = cv2.cvtColor(cv2.imread(str(image_path)), cv2.COLOR_BGR2RGB)
         truth = label_box(label_path, rgb.shape[1], rgb.shape[0])
-        scores.images += 1
-        scores.balls += truth is not None
-        matched = False
-        for box in sorted(boxes(rgb), key=lambda b: -b[4]):
-            right = truth is not None and not matched and iou(box, truth) >= IOU
-            matched |= right
-            scores.found += right
-            scores.false += not right
-            scores.ranked.append((box[4], right))
+        counts = [scores]
+        if groups is not None:
+            meta = sample_meta(image_path)
+            if meta is not None:
+                counts.append(groups.setdefault(meta['group'], Scores(ranked=[])))
+        found = sorted(boxes(rgb), key=lambda b: -b[4])
+        for count in counts:
+            count.images += 1
+            count.balls += truth is not None
+            matched = False
+            for box in found:
+                right = truth is not None and not matched and iou(box, truth) >= IOU
+                matched |= right
+                count.found += right
+                count.false += not right
+                count.ranked.append((box[4], right))
     return scores
+
+
+def sample_path(image: Path, kind: str, suffix: str) -> Path:
+    """Return the path of a sample's other file (``depth``, ``meta``: scene_dataset's)."""
+    return Path(str(image.with_suffix(suffix)).replace('/images/', f'/{kind}/'))
+
+
+def sample_meta(image: Path) -> dict | None:
+    """Return a sample's meta (colour group, camera matrix, ball), None when it has none."""
+    path = sample_path(image, 'meta', '.json')
+    return json.loads(path.read_text()) if path.is_file() else None
+
+
+@dataclass
+class Located(Scores):
+    """The node's pipeline: balls located in 3D (right: within the ball's radius of it)."""
+
+    errors: list[float] = field(default_factory=list)  # m, of the balls found
+
+    def line(self) -> str:
+        """Return the result line, with the median 3D error."""
+        error = f'{1000 * float(np.median(self.errors)):.1f} mm' if self.errors else '-'
+        return f'{super().line()}, {self.false} false balls, 3D error median {error}'
+
+
+def evaluate_pipeline(detector, pairs: list[tuple[Path, Path]],
+                      groups: dict[str, Located]) -> Located:
+    """Score the vision node's pipeline (detect, then locate with the depth) per colour group.
+
+    Needs scene_dataset's depth and meta beside each image; a ball counts when at least
+    :data:`MIN_VISIBLE` of it is seen (a sliver at the border or behind a box is no target).
+    """
+    from ur_rg2_vision.localize import locate_ball
+    total = Located(ranked=[])
+    for image_path, _ in pairs:
+        meta = sample_meta(image_path)
+        depth_path = sample_path(image_path, 'depth', '.png')
+        if meta is None or not depth_path.is_file():
+            continue
+        rgb = cv2.cvtColor(cv2.imread(str(image_path)), cv2.COLOR_BGR2RGB)
+        depth = cv2.imread(str(depth_path), cv2.IMREAD_UNCHANGED).astype(np.float32) / 1000.0
+        depth[depth == 0] = np.inf
+        k = np.asarray(meta['k'], dtype=float)
+        centre = None if meta['centre'] is None else np.asarray(meta['centre'])
+        counted = centre is not None and meta['visible'] >= MIN_VISIBLE
+        position, score = None, 0.0
+        for detection in detector.detect(rgb, k):
+            position = locate_ball(detection, depth, k)
+            if position is not None:
+                score = detection.coverage
+                break
+        group = groups.setdefault(meta['group'], Located(ranked=[]))
+        for count in (total, group):
+            count.images += 1
+            count.balls += counted
+            if position is None:
+                continue
+            located = np.array([position.x, position.y, position.z])
+            right = centre is not None and np.linalg.norm(located - centre) <= meta['radius']
+            if right and counted:
+                count.found += 1
+                count.errors.append(float(np.linalg.norm(located - centre)))
+            count.false += not right
+            count.ranked.append((score, bool(right and counted)))
+    return total
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -135,6 +220,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--detector', default='learned', choices=['learned', 'color'],
                         help="the learned model, or the colour detector (the vision node's "
                         'default, red balls) for comparison')
+    parser.add_argument('--min-radius-px', type=float, default=DEFAULT_MIN_RADIUS_PX,
+                        help="the vision node's min_radius_px")
     args = parser.parse_args(argv)
     try:
         pairs = split_images(args.data, args.split)
@@ -150,11 +237,27 @@ def main(argv: list[str] | None = None) -> int:
         boxes = lambda rgb: color_boxes(detector, rgb)  # noqa: E731
     else:
         try:
-            boxes = BallModel(args.model).boxes
+            model = BallModel(args.model)
         except ModelError as error:
             print(f'evaluate_detector: {error}', file=sys.stderr)
             return 2
-    print(evaluate(boxes, pairs).line())
+        boxes = model.boxes
+        detector = LearnedBallDetector(model, args.min_radius_px)
+    groups: dict[str, Scores] = {}
+    print(f'network alone ({args.detector}, at its threshold):')
+    print(f'  all: {evaluate(boxes, pairs, groups).line()}')
+    for name in sorted(groups, key=lambda g: GROUPS.index(g) if g in GROUPS else len(GROUPS)):
+        print(f'  {name}: {groups[name].line()}')
+    located: dict[str, Located] = {}
+    total = evaluate_pipeline(detector, pairs, located)
+    if not total.images:
+        print('pipeline: no depth/ and meta/ beside the images (scene_dataset writes them)')
+        return 0
+    print(f'node pipeline (detect, then the depth confirms and locates; right within the '
+          f"ball's radius; balls at least {MIN_VISIBLE:.0%} visible):")
+    print(f'  all: {total.line()}')
+    for name in sorted(located, key=lambda g: GROUPS.index(g) if g in GROUPS else len(GROUPS)):
+        print(f'  {name}: {located[name].line()}')
     return 0
 
 

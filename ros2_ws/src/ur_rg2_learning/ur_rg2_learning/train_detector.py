@@ -1,107 +1,145 @@
-"""``train_detector``: train a one-class YOLO ball detector on a ``dataset`` directory.
+"""``train_detector``: train the one-class ball detector on a ``dataset`` directory.
 
-Trains ultralytics' YOLOv8 (thin scale, :file:`detector_models/yolov8t-ball.yaml`) from
-scratch on the CPU, on the data set's ``data.yaml``, with ultralytics' progress bars. Writes to
-``--out``: ``model.onnx`` (ultralytics' ONNX export, 1 x 5 x N, for 640x480 frames letterboxed
-to ``--imgsz`` wide), ``detector.json`` (input size, class names, thresholds, the validation
-metrics of the exported model as ``vision`` runs it, the training's settings and time),
-``results.csv`` (ultralytics' per-epoch losses and metrics) and ``training_curve.png``; the
-machine's load average is recorded beside the time (the machine may be shared). Needs
-the learning set-up (``scripts/bootstrap requirements-learning.txt``).
+Trains :class:`ur_rg2_learning.detector_net.BallNet` (a compact CenterNet written for this
+project in plain torch, Apache-2.0; no pretrained weights, no detection library) from scratch
+on the CPU, on the data set's ``data.yaml`` (YOLO layout). Frames are scaled to the input size
+(``--imgsz`` wide, 4:3) and held in memory; each step trains on random crops of them
+(``--crop``; the network is fully convolutional), flipped, with their colour channels shuffled
+and their brightness and contrast changed. The learning rate follows a cosine over
+``--minutes`` (a time budget: the machine may be shared) or ``--epochs``, whichever ends
+first. After each epoch the network is scored on the validation frames; the best epoch (F1
+at the node's threshold) is exported. Writes to ``--out``: ``model.onnx`` (1 x 5 x N rows
+``cx cy w h score``, the layout :mod:`ur_rg2_vision.learned` reads), ``detector.json`` (input
+size, class names, thresholds, how it was trained, with the load average, and the validation
+metrics of the exported model run as ``vision`` runs it), ``results.csv`` (per epoch) and
+``training_curve.png``. Needs the learning set-up (``scripts/bootstrap
+requirements-learning.txt``).
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
 import io
 import json
 import math
 import os
 from pathlib import Path
-import shutil
 import sys
-import tempfile
 import time
 
+import cv2
+import numpy as np
 from ur_rg2_vision.learned import MODEL_FILE, SETTINGS_FILE, BallModel
 
 from ur_rg2_learning.actor import write_atomically
-from ur_rg2_learning.evaluate_detector import evaluate, split_images
+from ur_rg2_learning.evaluate_detector import evaluate, label_box, split_images
 
-NETWORK = Path(__file__).resolve().parent / 'detector_models' / 'yolov8t-ball.yaml'
-# A box may be a ball from this class score on; the depth then decides (localize: a cube or a
-# disc is no sphere). Low, for recall: on the shipped model's validation split the boxes' recall
-# was 0.68 at 0.1, 0.30 at 0.25 (Ultralytics' predict default), 0.02 at 0.5.
-CONFIDENCE = 0.1
-IOU = 0.5  # non-maximum suppression
-FRAME_ASPECT = 480 / 640  # the camera's frames: the export's input fits them
-STRIDE = 32  # YOLOv8's largest stride: input sides are multiples of it
-HUE_SHIFT = 0.5  # Ultralytics' hsv_h: a fraction of the hue circle (its default 0.015)
-# Of Ultralytics' default 3: a run within an hour on two cores has about a dozen epochs.
-WARMUP_EPOCHS = 1.0
-CLOSE_MOSAIC_SHARE = 0.15  # the last epochs train on whole frames, as vision sees them
+# A box is a ball from this peak score on while training; the node's threshold (in
+# detector.json) is then chosen on the validation split (best F1, see choose_threshold).
+CONFIDENCE = 0.3
+FLOOR = 0.05  # scores below this are never a ball
+IOU = 0.5  # non-maximum suppression (one peak per ball already: a guard only)
+FRAME_ASPECT = 480 / 640  # the camera's frames
+VAL_FRAMES = 200  # validation frames scored after each epoch (all of them at the end)
 
 
-def _size_close_mosaic(trainer) -> None:
-    """Keep the epochs without mosaic a share of the run, also when a time budget sets it.
-
-    With ``--hours`` Ultralytics re-estimates the number of epochs after the first one; a
-    ``close_mosaic`` fixed from ``--epochs`` could then exceed the run and switch mosaic off
-    from the start.
-    """
-    trainer.args.close_mosaic = max(1, round(CLOSE_MOSAIC_SHARE * trainer.epochs))
-
-
-def _torchvision_beside_cpu_torch() -> None:
-    """Let ultralytics import torchvision beside the CPU build of torch.
-
-    PyPI's torchvision is built against PyPI's (CUDA) torch: its compiled operators do not
-    load beside torch 2.13.0+cpu, and importing it then fails ('operator torchvision::nms does
-    not exist'). Ultralytics imports it for validation and uses only its box NMS: define
-    that operator here, computed by ultralytics' own pure-torch NMS, before torchvision loads.
-    """
-    import torch
-    if 'torchvision' in sys.modules or hasattr(torch.ops.torchvision, 'nms'):
-        return
-    library = torch.library.Library('torchvision', 'DEF')  # noqa: TOR901 - kept below
-    library.define('nms(Tensor dets, Tensor scores, float iou_threshold) -> Tensor')
-    library.define('qnms(Tensor dets, Tensor scores, float iou_threshold) -> Tensor')
-
-    def nms(boxes, scores, threshold):
-        from ultralytics.utils.nms import TorchNMS
-        return TorchNMS.nms(boxes, scores, threshold)
-
-    library.impl('nms', nms, 'CPU')
-    _torchvision_beside_cpu_torch.library = library  # the definitions live as long as it
-    import torchvision.extension
-    torchvision.extension._has_ops = lambda: True
+def load_split(pairs: list[tuple[Path, Path]], size: tuple[int, int]
+               ) -> tuple[np.ndarray, list[tuple[float, float, float, float] | None]]:
+    """Return a split's frames scaled to ``size`` (height, width), uint8 RGB, and boxes."""
+    height, width = size
+    images = np.empty((len(pairs), height, width, 3), np.uint8)
+    boxes = []
+    for i, (image, label) in enumerate(pairs):
+        bgr = cv2.imread(str(image))
+        if bgr is None:
+            raise OSError(f'cannot read {image}')
+        images[i] = cv2.resize(bgr, (width, height), interpolation=cv2.INTER_AREA)[..., ::-1]
+        boxes.append(label_box(label, width, height))
+    return images, boxes
 
 
-def plot_curve(results_csv: Path, png: Path) -> None:
-    """Draw the training curve: losses and validation mAP50 / recall per epoch."""
+def augment(rng: np.random.Generator, image: np.ndarray,
+            box: tuple[float, float, float, float] | None, crop: tuple[int, int]
+            ) -> tuple[np.ndarray, tuple[float, float, float, float] | None]:
+    """Return a random crop of a frame (often about its ball) with its clipped box."""
+    height, width = image.shape[:2]
+    ch, cw = crop
+    if box is not None and rng.uniform() < 0.7:
+        cx, cy = (box[0] + box[2]) / 2, (box[1] + box[3]) / 2
+        x0 = int(np.clip(cx - rng.uniform(0.1, 0.9) * cw, 0, width - cw))
+        y0 = int(np.clip(cy - rng.uniform(0.1, 0.9) * ch, 0, height - ch))
+    else:
+        x0, y0 = int(rng.integers(0, width - cw + 1)), int(rng.integers(0, height - ch + 1))
+    patch = image[y0:y0 + ch, x0:x0 + cw]
+    if box is not None:
+        u0, v0 = max(box[0] - x0, 0.0), max(box[1] - y0, 0.0)
+        u1, v1 = min(box[2] - x0, float(cw)), min(box[3] - y0, float(ch))
+        # A ball whose centre the crop cuts off is no ball of this crop.
+        centre_in = 0 <= (box[0] + box[2]) / 2 - x0 < cw and 0 <= (box[1] + box[3]) / 2 - y0 < ch
+        box = (u0, v0, u1, v1) if centre_in and u1 > u0 and v1 > v0 else None
+    if rng.uniform() < 0.5:
+        patch = patch[:, ::-1]
+        if box is not None:
+            box = (cw - box[2], box[1], cw - box[0], box[3])
+    patch = patch[..., rng.permutation(3)].astype(np.float32)
+    patch = patch * rng.uniform(0.7, 1.3) + rng.uniform(-30, 30)
+    return np.clip(patch, 0, 255, out=patch), box
+
+
+def plot_curve(rows: list[dict], png: Path) -> None:
+    """Draw the training curve: losses and validation recall / precision / mAP50 per epoch."""
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
-    import polars
-    table = polars.read_csv(results_csv)
-    table.columns = [name.strip() for name in table.columns]
+    epochs = [row['epoch'] for row in rows]
     figure, (losses, metrics) = plt.subplots(1, 2, figsize=(9, 3.4))
-    for name in ('train/box_loss', 'train/cls_loss', 'val/box_loss', 'val/cls_loss'):
-        losses.plot(table['epoch'], table[name], label=name)
+    for name in ('heat_loss', 'box_loss'):
+        losses.plot(epochs, [row[name] for row in rows], label=name)
     losses.set_xlabel('epoch')
-    losses.set_title('losses')
+    losses.set_yscale('log')
+    losses.set_title('training losses')
     losses.legend(fontsize=8)
-    for name in ('metrics/mAP50(B)', 'metrics/recall(B)', 'metrics/precision(B)'):
-        metrics.plot(table['epoch'], table[name], label=name.split('/')[1])
+    for name in ('recall', 'precision', 'mAP50'):
+        metrics.plot(epochs, [row[name] for row in rows], label=name)
     metrics.set_ylim(0, 1.02)
     metrics.set_xlabel('epoch')
-    metrics.set_title('validation (ultralytics, PyTorch model)')
+    metrics.set_title(f'validation (at score {CONFIDENCE})')
     metrics.legend(fontsize=8, loc='lower right')
     figure.tight_layout()
     buffer = io.BytesIO()
     figure.savefig(buffer, format='png', dpi=90)
     plt.close(figure)
     write_atomically(png, lambda f: f.write(buffer.getvalue()))
+
+
+def choose_threshold(ranked: list[tuple[float, bool]], balls: int) -> float:
+    """Return the score threshold of best F1 (the higher one of equals) over ranked boxes."""
+    best, threshold = -1.0, CONFIDENCE
+    for t in np.arange(0.1, 0.91, 0.05):
+        found = sum(right for score, right in ranked if score >= t)
+        false = sum(not right for score, right in ranked if score >= t)
+        f1 = 2 * found / max(found + false + balls, 1)
+        if f1 >= best:
+            best, threshold = f1, round(float(t), 2)
+    return threshold
+
+
+def _torch_boxes(torch, model, size: tuple[int, int], floor: float = CONFIDENCE):
+    """Return ``boxes(rgb)`` for :func:`evaluate` from the torch model (frames as scaled)."""
+    height, width = size
+
+    def boxes(rgb: np.ndarray) -> list[tuple[float, ...]]:
+        scale = rgb.shape[1] / width
+        small = rgb if rgb.shape[:2] == (height, width) else cv2.resize(
+            rgb, (width, height), interpolation=cv2.INTER_AREA)
+        with torch.no_grad():
+            rows = model(torch.from_numpy(np.ascontiguousarray(
+                small.transpose(2, 0, 1)[None], dtype=np.float32) / 255))[0].numpy().T
+        rows = rows[rows[:, 4] >= floor]
+        return [((cx - w / 2) * scale, (cy - h / 2) * scale, (cx + w / 2) * scale,
+                 (cy + h / 2) * scale, score) for cx, cy, w, h, score in rows]
+    return boxes
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -112,95 +150,152 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--data', required=True, metavar='DIR',
                         help='data set directory (dataset --out) with its data.yaml')
     parser.add_argument('--out', required=True, metavar='DIR', help='model directory to write')
-    parser.add_argument('--epochs', type=int, default=40)
+    parser.add_argument('--epochs', type=int, default=60)
+    parser.add_argument('--minutes', type=float, default=50.0,
+                        help='time budget: training ends after it even before --epochs')
     parser.add_argument('--imgsz', type=int, default=320,
-                        help='training image size; the export takes frames this wide')
+                        help='input width (a multiple of 32); the height keeps 4:3')
+    parser.add_argument('--crop', type=int, default=128, help='training crop side, pixels')
     parser.add_argument('--seed', type=int, default=0)
-    parser.add_argument('--batch', type=int, default=16)
-    parser.add_argument('--threads', type=int, default=2, help='torch CPU threads')
-    parser.add_argument('--hours', type=float, default=0.0,
-                        help='a time budget instead: ultralytics fits the number of epochs '
-                        'to it after the first one (0: --epochs decides)')
+    parser.add_argument('--batch', type=int, default=64)
+    parser.add_argument('--lr', type=float, default=3e-3)
+    parser.add_argument('--threads', type=int, default=1,
+                        help='torch CPU threads (one ran 10 times faster than two on the '
+                        'shared 2-core machine)')
     args = parser.parse_args(argv)
-    if args.epochs < 1 or args.imgsz < STRIDE or args.imgsz % STRIDE or args.batch < 1:
-        parser.error(f'--epochs and --batch must be positive, --imgsz a multiple of {STRIDE}')
-    data_yaml = Path(args.data) / 'data.yaml'
-    if not data_yaml.is_file():
+    height = round(args.imgsz * FRAME_ASPECT)
+    if (args.epochs < 1 or args.imgsz < 32 or args.imgsz % 32 or args.batch < 1
+            or not 32 <= args.crop <= height or args.minutes <= 0):
+        parser.error('--epochs, --batch and --minutes must be positive, --imgsz a multiple of '
+                     '32, --crop between 32 and the input height')
+    if not (Path(args.data) / 'data.yaml').is_file():
         print(f'train_detector: no data.yaml in {args.data} (make one with dataset --out)',
               file=sys.stderr)
         return 2
-    # Ultralytics' settings and font cache in a scratch directory, never online.
-    scratch = Path(tempfile.mkdtemp(prefix='train_detector-'))
-    os.environ.setdefault('YOLO_CONFIG_DIR', str(scratch / 'config'))
-    os.environ.setdefault('YOLO_OFFLINE', '1')
     try:
         import torch
-        _torchvision_beside_cpu_torch()
-        import ultralytics
-        from ultralytics import YOLO
+
+        from ur_rg2_learning.detector_net import BallNet, Exported, loss, targets
     except ImportError as error:
         print(f'train_detector needs the learning set-up ({error}): run '
               '`scripts/bootstrap requirements-learning.txt`', file=sys.stderr)
         return 2
     torch.set_num_threads(args.threads)
+    torch.manual_seed(args.seed)
+    rng = np.random.default_rng(args.seed)
+    size = (height, args.imgsz)
+    started = time.monotonic()
+    load_start = os.getloadavg()[0]
+    train_pairs, val_pairs = split_images(args.data, 'train'), split_images(args.data, 'val')
+    if not train_pairs or not val_pairs:
+        print(f'train_detector: {args.data} needs train and val images', file=sys.stderr)
+        return 2
+    images, boxes = load_split(train_pairs, size)
+    val_check = [val_pairs[i] for i in np.linspace(0, len(val_pairs) - 1, min(
+        VAL_FRAMES, len(val_pairs))).astype(int)]
+    print(f'train_detector: {len(images)} training frames loaded in '
+          f'{time.monotonic() - started:.0f} s', flush=True)
+    net = BallNet()
+    optimizer = torch.optim.AdamW(net.parameters(), lr=args.lr, weight_decay=1e-4)
+    budget = args.minutes * 60
+    steps_per_epoch = max(1, len(images) // args.batch)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    load_start = os.getloadavg()[0]
-    started = time.monotonic()
-    try:
-        model = YOLO(str(NETWORK), task='detect')
-        model.add_callback('on_train_epoch_start', _size_close_mosaic)
-        model.train(data=str(data_yaml.resolve()), epochs=args.epochs, imgsz=args.imgsz,
-                    batch=args.batch, seed=args.seed, deterministic=True, device='cpu',
-                    workers=0, amp=False, plots=False, project=str(scratch), name='train',
-                    exist_ok=True, verbose=False, patience=args.epochs,
-                    close_mosaic=max(1, args.epochs // 5), time=args.hours or None,
-                    # A ball is a ball in any colour: hue shifted by up to half the circle.
-                    hsv_h=HUE_SHIFT, warmup_epochs=WARMUP_EPOCHS,
-                    cache='ram')  # decoded once: PNG decoding took a third of the time
-        seconds = time.monotonic() - started
-        load = {'start': round(load_start, 1), 'end': round(os.getloadavg()[0], 1),
-                'end_15min': round(os.getloadavg()[2], 1)}
-        run = scratch / 'train'
-        best = YOLO(str(run / 'weights' / 'best.pt'), task='detect')
-        height = math.ceil(args.imgsz * FRAME_ASPECT / STRIDE) * STRIDE
-        onnx = Path(best.export(format='onnx', imgsz=[height, args.imgsz], opset=12,
-                                simplify=False, dynamic=False))
-        shutil.copyfile(onnx, out / (MODEL_FILE + '.tmp'))
-        os.replace(out / (MODEL_FILE + '.tmp'), out / MODEL_FILE)
-        shutil.copyfile(run / 'results.csv', out / 'results.csv')
-        plot_curve(out / 'results.csv', out / 'training_curve.png')
-        epochs = len((out / 'results.csv').read_text().strip().splitlines()) - 1  # trained
-        settings = {
-            'input_size': [height, args.imgsz],
-            'names': ['ball'],
-            'ball_class': 0,
-            'confidence': CONFIDENCE,
-            'iou': IOU,
-            'layout': 'ultralytics YOLOv8 ONNX: 1 x (4 + classes) x N, cx cy w h in input '
-                      'pixels of the letterboxed frame',
-            'training': {'data': str(Path(args.data).resolve()), 'epochs': epochs,
-                         'imgsz': args.imgsz, 'seed': args.seed, 'batch': args.batch,
-                         'seconds': round(seconds, 1), 'load_average': load,
-                         'command': ' '.join(['train_detector', *sys.argv[1:]]
-                                             if argv is None else ['train_detector', *argv]),
-                         'network': NETWORK.name,
-                         'library': f'ultralytics {ultralytics.__version__} (AGPL-3.0)',
-                         'torch': torch.__version__},
-        }
-        text = json.dumps(settings, indent=2) + '\n'
-        write_atomically(out / SETTINGS_FILE, lambda f: f.write(text.encode()))
-        # The validation metrics of the exported model, run as the vision node runs it.
-        scores = evaluate(BallModel(out).boxes, split_images(args.data, 'val'))
-        settings['validation'] = {'recall': round(scores.recall, 4),
-                                  'precision': round(scores.precision, 4),
-                                  'mAP50': round(scores.map50, 4), 'images': scores.images}
-        text = json.dumps(settings, indent=2) + '\n'
-        write_atomically(out / SETTINGS_FILE, lambda f: f.write(text.encode()))
-    finally:
-        shutil.rmtree(scratch, ignore_errors=True)
-    print(f'train_detector: {epochs} epochs in {seconds / 60:.1f} min; validation '
-          f'{scores.line()}; model written to {out}')
+    rows: list[dict] = []
+    best, best_state = -1.0, None
+    crop = (args.crop, args.crop)
+    for epoch in range(1, args.epochs + 1):
+        net.train()
+        order = rng.permutation(len(images))
+        sums = [0.0, 0.0]
+        for step in range(steps_per_epoch):
+            # Cosine over the budget, by time or by steps, whichever is further on.
+            progress = max((time.monotonic() - started) / budget,
+                           ((epoch - 1) * steps_per_epoch + step) / (
+                               args.epochs * steps_per_epoch))
+            for group in optimizer.param_groups:
+                group['lr'] = args.lr * (0.02 + 0.98 * 0.5 * (1 + math.cos(
+                    math.pi * min(progress, 1.0))))
+            batch = [augment(rng, images[i], boxes[i], crop)
+                     for i in order[step * args.batch:(step + 1) * args.batch]]
+            x = torch.from_numpy(np.stack([b[0] for b in batch]).transpose(0, 3, 1, 2) / 255)
+            heat, regress, index = targets([b[1] for b in batch], *crop)
+            focal, box = loss(net(x), torch.from_numpy(heat), torch.from_numpy(regress),
+                              torch.from_numpy(index))
+            optimizer.zero_grad()
+            (focal + box).backward()
+            optimizer.step()
+            sums[0] += float(focal.detach())
+            sums[1] += float(box.detach())
+        net.eval()
+        scores = evaluate(_torch_boxes(torch, Exported(net), size), val_check)
+        f1 = 2 * scores.recall * scores.precision / max(scores.recall + scores.precision, 1e-9)
+        minutes = (time.monotonic() - started) / 60
+        rows.append({'epoch': epoch, 'minutes': round(minutes, 2),
+                     'heat_loss': round(sums[0] / steps_per_epoch, 5),
+                     'box_loss': round(sums[1] / steps_per_epoch, 5),
+                     'recall': round(scores.recall, 4), 'precision': round(scores.precision, 4),
+                     'mAP50': round(scores.map50, 4), 'load': round(os.getloadavg()[0], 1)})
+        print(f'epoch {epoch} ({minutes:.1f} min, load {rows[-1]["load"]}): heat loss '
+              f'{rows[-1]["heat_loss"]} box loss {rows[-1]["box_loss"]}; validation '
+              f'{scores.line()}', flush=True)
+        if f1 + scores.map50 > best:
+            best = f1 + scores.map50
+            best_state = {k: v.clone() for k, v in net.state_dict().items()}
+            best_epoch = epoch
+        if time.monotonic() - started >= budget:
+            break
+    seconds = time.monotonic() - started
+    load = {'start': round(load_start, 1), 'end': round(os.getloadavg()[0], 1),
+            'end_15min': round(os.getloadavg()[2], 1)}
+    net.load_state_dict(best_state)
+    net.eval()
+    scored = evaluate(_torch_boxes(torch, Exported(net), size, FLOOR), val_pairs)
+    confidence = choose_threshold(scored.ranked, scored.balls)
+    temporary = out / (MODEL_FILE + '.tmp')
+    torch.onnx.export(Exported(net), (torch.zeros(1, 3, *size),), str(temporary),
+                      dynamo=False, opset_version=13, input_names=['images'],
+                      output_names=['output'])
+    os.replace(temporary, out / MODEL_FILE)
+    text = io.StringIO()
+    writer = csv.DictWriter(text, fieldnames=list(rows[0]))
+    writer.writeheader()
+    writer.writerows(rows)
+    write_atomically(out / 'results.csv', lambda f: f.write(text.getvalue().encode()))
+    plot_curve(rows, out / 'training_curve.png')
+    settings = {
+        'input_size': list(size),
+        'names': ['ball'],
+        'ball_class': 0,
+        'confidence': confidence,
+        'iou': IOU,
+        'layout': 'ur_rg2_learning.detector_net (CenterNet, stride 8) ONNX: 1 x 5 x N rows cx '
+                  'cy w h score in input pixels of the frame scaled to the input',
+        'licence': 'Apache-2.0 (trained by this project, from scratch)',
+        'training': {'data': str(Path(args.data).resolve()), 'epochs': len(rows),
+                     'best_epoch': best_epoch, 'imgsz': args.imgsz, 'crop': args.crop,
+                     'seed': args.seed, 'batch': args.batch, 'lr': args.lr,
+                     'frames': len(images), 'seconds': round(seconds, 1),
+                     'load_average': load,
+                     'command': ' '.join(['train_detector', *(sys.argv[1:] if argv is None
+                                                              else argv)]),
+                     'network': 'ur_rg2_learning.detector_net.BallNet',
+                     'library': f'torch {torch.__version__} (BSD-3-Clause)'},
+    }
+    write_atomically(out / SETTINGS_FILE,
+                     lambda f: f.write((json.dumps(settings, indent=2) + '\n').encode()))
+    # The validation metrics of the exported model, run as the vision node runs it.
+    scores = evaluate(BallModel(out).boxes, val_pairs)
+    settings['validation'] = {'recall': round(scores.recall, 4),
+                              'precision': round(scores.precision, 4),
+                              'mAP50': round(scores.map50, 4), 'images': scores.images}
+    write_atomically(out / SETTINGS_FILE,
+                     lambda f: f.write((json.dumps(settings, indent=2) + '\n').encode()))
+    print(f'train_detector: {len(rows)} epochs in {seconds / 60:.1f} min (load '
+          f'{load["start"]} at the start, {load["end"]} at the end), '
+          f'{(time.monotonic() - started) / 60:.1f} min with the export and validation; best '
+          f'epoch {best_epoch}; threshold {confidence}; validation {scores.line()}; model '
+          f'written to {out}')
     return 0
 
 

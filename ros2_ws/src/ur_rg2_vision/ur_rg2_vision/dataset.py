@@ -232,9 +232,28 @@ def any_camera_pose(rng: np.random.Generator, reach: tuple[float, float]
             return (tuple(float(v) for v in position), tuple(float(v) for v in target))
 
 
+# The colour groups of balls (and the data set's and evaluation's groups): plain colours, then
+# balls of two colours in a pattern (rendered scenes only: the sim's ball has one colour).
+COLOR_GROUPS = ('saturated', 'pastel', 'white', 'grey', 'dark', 'patterned')
+PLAIN_GROUPS = COLOR_GROUPS[:-1]
+
+
+def group_color(rng: np.random.Generator, group: str) -> tuple[float, float, float, float]:
+    """Return a random plain colour (rgba 0-1) of one of :data:`PLAIN_GROUPS`."""
+    hue = rng.uniform(0, 1)
+    saturation, value = {
+        'saturated': (rng.uniform(0.6, 1), rng.uniform(0.5, 1)),
+        'pastel': (rng.uniform(0.15, 0.45), rng.uniform(0.8, 1)),
+        'white': (rng.uniform(0, 0.06), rng.uniform(0.9, 1)),
+        'grey': (rng.uniform(0, 0.08), rng.uniform(0.3, 0.75)),
+        'dark': (rng.uniform(0, 1), rng.uniform(0.06, 0.28)),
+    }[group]
+    return (*(float(c) for c in colorsys.hsv_to_rgb(hue, saturation, value)), 1.0)
+
+
 def _random_color(rng: np.random.Generator) -> tuple[float, float, float, float]:
-    rgb = colorsys.hsv_to_rgb(rng.uniform(0, 1), rng.uniform(0.5, 1), rng.uniform(0.5, 1))
-    return (*(float(c) for c in rgb), 1.0)
+    """Return a colour of any plain group: saturated, pastel, white, grey or dark."""
+    return group_color(rng, PLAIN_GROUPS[int(rng.integers(len(PLAIN_GROUPS)))])
 
 
 def plan_distractors(rng: np.random.Generator, camera: Camera, ball: Sequence[float],
@@ -383,13 +402,16 @@ class DatasetWriter:
         """Return how many samples (images) the data set holds."""
         return sum(len(self._names('images', split)) for split in SPLITS)
 
-    def write(self, rgb: np.ndarray, label: tuple[float, float, float, float] | None
-              ) -> Path:
-        """Write one sample under the next free name: the label first, then the image.
+    def write(self, rgb: np.ndarray, label: tuple[float, float, float, float] | None,
+              extras: dict[str, tuple[str, bytes]] | None = None) -> Path:
+        """Write one sample under the next free name: the label (and extras) first, the image.
 
-        Both appear whole (written aside, then linked to a name no file has), so an image
-        never exists without its label. Returns the image's path.
+        All appear whole (written aside, then linked to a name no file has), so an image
+        never exists without its label. ``extras``: more files of the sample, a folder beside
+        ``images`` -> (file suffix, content), e.g. ``{'depth': ('.png', ...)}``. Returns the
+        image's path.
         """
+        extras = extras or {}
         while True:
             index = self.next_index
             self.next_index += 1
@@ -398,16 +420,22 @@ class DatasetWriter:
             label_dir, image_dir = self.root / 'labels' / split, self.root / 'images' / split
             temporaries = [write_temporary(str(label_dir), f'{name}.txt',
                                            label_text(label).encode())]
+            paths = [str(label_dir / f'{name}.txt')]
             try:
+                for kind, (suffix, data) in extras.items():
+                    folder = self.root / kind / split
+                    folder.mkdir(parents=True, exist_ok=True)
+                    temporaries.append(write_temporary(str(folder), name + suffix, data))
+                    paths.append(str(folder / (name + suffix)))
                 temporaries.append(write_temporary(
                     str(image_dir), f'{name}.png', encode_png(cv2.cvtColor(rgb,
                                                                            cv2.COLOR_RGB2BGR))))
-                paths = [str(label_dir / f'{name}.txt'), str(image_dir / f'{name}.png')]
+                paths.append(str(image_dir / f'{name}.png'))
                 try:
                     publish_new(temporaries, paths)
                 except FileExistsError:
                     continue  # another writer took this name
-                return Path(paths[1])
+                return Path(paths[-1])
             finally:
                 for temporary in temporaries:
                     remove(temporary)

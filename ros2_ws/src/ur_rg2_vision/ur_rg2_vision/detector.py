@@ -457,3 +457,17 @@ def _fit_circle(points: np.ndarray, start: tuple[float, float, float]
         if abs(step).max() < 1e-3:
             break
     return u, v, r
+
+
+_DRAW_COLOR = (0, 255, 0)
+
+
+def draw_detections(rgb: np.ndarray, detections: list[Detection]) -> np.ndarray:
+    """Return a copy of ``rgb`` with each detected ball's circle and centre drawn."""
+    image = rgb.copy()
+    for detection in detections:
+        centre = (round(detection.u), round(detection.v))
+        cv2.circle(image, centre, max(1, round(detection.radius)), _DRAW_COLOR, 2,
+                   cv2.LINE_AA)
+        cv2.drawMarker(image, centre, _DRAW_COLOR, cv2.MARKER_CROSS, 8, 1)
+    return image

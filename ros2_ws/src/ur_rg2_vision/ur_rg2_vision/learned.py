@@ -1,27 +1,25 @@
-"""The learned ball detector: a YOLO model exported to ONNX, run with ONNX Runtime. No ROS.
+"""The learned ball detector: a one-class network exported to ONNX, run with ONNX Runtime. No ROS.
 
 A model directory (written by ``train_detector``, or the one shipped in this package) holds
 ``model.onnx`` and ``detector.json``: the input size ``[height, width]``, the class ``names``,
 the ``ball_class`` index and the ``confidence`` and ``iou`` (non-maximum suppression)
-thresholds. Output layouts read: ultralytics' YOLOv8/YOLO11 export (``yolo export
-format=onnx``), 1 x (4 + classes) x N, and its transpose 1 x N x (4 + classes); boxes are
-(cx, cy, w, h) in input pixels of the letterboxed image (the frame scaled to fit, centred, grey
-around it, as ultralytics feeds it), class scores 0-1. A user's own model of that layout drops
-in with a ``detector.json`` beside it. ONNX Runtime (MIT; imported only when a model is loaded)
-runs it on the CPU on one thread: the shipped network's forward pass took 5.7 ms median, 7.5 ms
-p95, against OpenCV DNN's 8.9 / 14.5 ms (one thread each, 256x320, load 5).
+thresholds. Output layout: 1 x (4 + classes) x N rows, or their transpose; boxes are (cx, cy,
+w, h) in input pixels of the letterboxed frame (scaled to fit, centred, grey around it), class
+scores 0-1. The shipped model (:mod:`ur_rg2_learning.detector_net`, a CenterNet trained by
+this project, Apache-2.0) gives that layout, as does an ultralytics YOLOv8 export: a user's own
+model of that layout drops in with a ``detector.json`` beside it. ONNX Runtime (MIT; imported
+only when a model is loaded) runs it on the CPU on one thread.
 
-Each box gives two candidates, tried by :func:`ur_rg2_vision.localize.locate_first` (all
-boxes' outlines first, then the boxes): the ball's outline found in and around the box by the
-ball's own colour (the median hue of the box's middle) with the colour detector's circle fit,
-sharper than the model's box; and the box itself as a
-:class:`~ur_rg2_vision.detector.Detection` like the colour detector's: the sphere whose outline
-has this box (off the optical axis an ellipse, see :func:`ur_rg2_vision.dataset.sphere_box`)
-gives the image of its centre and its radius as seen on the axis; its pixels are the disc
-inside the box, and :mod:`ur_rg2_vision.localize` fits the
-sphere to their depth (a flat disc or a cube the model took for a ball fails there).
+The network decides: each of its boxes over the threshold is a ball candidate, most confident
+first, as a :class:`~ur_rg2_vision.detector.Detection` like the colour detector's: the sphere
+whose outline has this box (off the optical axis an ellipse, see
+:func:`ur_rg2_vision.dataset.sphere_box`) gives the image of its centre and its radius as seen
+on the axis; its pixels are the disc inside the box, and :mod:`ur_rg2_vision.localize` fits
+the sphere to their depth, which gives the 3D centre (and turns down a box on a flat disc or a
+cube). No colour rule finds, refines or accepts a ball.
 """
 
+from dataclasses import dataclass
 import json
 import math
 import os
@@ -41,11 +39,6 @@ _MAX_CANDIDATES = 100  # boxes over the threshold kept for non-maximum suppressi
 _MAX_BOXES = 6  # the most confident boxes after it: bounds the work per frame
 _FIT_ITERATIONS = 6
 _BORDER_PX = 1.0  # a box side this near the image border is cut off there, not the outline
-# The ball's colour, taken from the middle of the model's box: hue +- this, at least this much
-# saturation (OpenCV's 8-bit HSV) for a colour to go by, and value (its shaded side).
-_HUE_SPAN = 10
-_MIN_SATURATION = 60
-_MIN_VALUE = 25
 
 
 class ModelError(ValueError):
@@ -160,50 +153,33 @@ class LearnedBallDetector:
         """
         if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
             raise ValueError(f'expected an RGB uint8 image, got {rgb.dtype} {rgb.shape}')
-        boxes = self.model.boxes(rgb)
-        # The outlines found by a ball's own colour first, of every box: sharper than a box,
-        # and a round outline of one colour is more evidence of a ball than a box alone (a
-        # confident box on a rounded part of the robot cut off by the image border must not
-        # come before the ball's outline in a less confident one).
-        outlines = [_colour_outline(rgb, k, box, self.min_radius_px) for box in boxes]
-        shapes = [box_detection(box, rgb.shape[1], rgb.shape[0], k) for box in boxes]
-        return [detection for detection in (*outlines, *shapes)
-                if detection is not None and detection.radius >= self.min_radius_px]
+        shapes = (box_detection(box, rgb.shape[1], rgb.shape[0], k)
+                  for box in self.model.boxes(rgb))
+        return [detection for detection in shapes if detection.radius >= self.min_radius_px]
 
 
-def _colour_outline(rgb: np.ndarray, k: np.ndarray | None,
-                    box: tuple[float, float, float, float, float],
-                    min_radius_px: float) -> Detection | None:
-    """Return the ball's outline in the box found by its colour, None when there is none.
+@dataclass(frozen=True)
+class DetectionConfig:
+    """The vision node's detector and the ball radius it assumes (0: measured)."""
 
-    The colour: the median hue and saturation of the box's middle; the colour detector's
-    circle fit then finds the outline in the box grown by a quarter (the model's box is a few
-    pixels off). A ball of little saturation (grey, white) has no hue to go by.
+    detector: BallDetector | LearnedBallDetector
+    ball_radius: float
+
+
+def detection_config(values: dict, model: BallModel | None) -> DetectionConfig:
+    """Return the detection settings for parameter values; ValueError if they are invalid.
+
+    ``values``: ``hsv_lower``, ``hsv_upper``, ``min_radius_px``, ``ball_radius``; ``model``:
+    the learned detector's model, None for the colour detector.
     """
-    u0, v0, u1, v1, _ = box
-    half_w, half_h = (u1 - u0) / 2, (v1 - v0) / 2
-    cu, cv_ = (u0 + u1) / 2, (v0 + v1) / 2
-    core = rgb[int(cv_ - half_h / 3):int(cv_ + half_h / 3) + 1,
-               int(cu - half_w / 3):int(cu + half_w / 3) + 1]
-    if core.size == 0:
-        return None
-    hsv = cv2.cvtColor(np.ascontiguousarray(core), cv2.COLOR_RGB2HSV).reshape(-1, 3)
-    saturation = float(np.median(hsv[:, 1]))
-    if saturation < _MIN_SATURATION:
-        return None
-    # The median hue on the circle of hues: about the hue farthest from most of them.
-    hue = hsv[:, 0].astype(int)
-    pivot = (int(np.median((hue + 90) % 180)) + 90) % 180
-    lower = ((pivot - _HUE_SPAN) % 180, int(saturation * 0.4), _MIN_VALUE)
-    upper = ((pivot + _HUE_SPAN) % 180, 255, 255)
-    detector = BallDetector(HsvRange(lower, upper), min_radius_px)
-    grow_w, grow_h = half_w / 2 + 2, half_h / 2 + 2
-    detection = detector.find_in(rgb, k, (int(u0 - grow_w), int(v0 - grow_h),
-                                          int(math.ceil(u1 + grow_w)),
-                                          int(math.ceil(v1 + grow_h))))
-    if detection is None or not (u0 <= detection.u + 0.5 <= u1 and v0 <= detection.v + 0.5 <= v1):
-        return None
-    return detection
+    color = HsvRange(tuple(int(x) for x in values['hsv_lower']),
+                     tuple(int(x) for x in values['hsv_upper']))
+    if not values['ball_radius'] >= 0:
+        raise ValueError(f'ball_radius must be 0 (measure) or positive, got '
+                         f'{values["ball_radius"]}')
+    detector = (BallDetector(color, values['min_radius_px']) if model is None
+                else LearnedBallDetector(model, values['min_radius_px']))
+    return DetectionConfig(detector, float(values['ball_radius']))
 
 
 def box_detection(box: tuple[float, float, float, float, float], width: int, height: int,

@@ -1,7 +1,7 @@
 """Node ``ur_rg2_vision``: the ball's 3D position from the RGB-D camera, and frame saving.
 
 ROS wiring only; the work is done by :mod:`ur_rg2_vision.detector` (colour + shape) or, with
-``detector:=learned``, :mod:`ur_rg2_vision.learned` (a YOLO model, ONNX),
+``detector:=learned``, :mod:`ur_rg2_vision.learned` (a trained network, ONNX),
 :mod:`ur_rg2_vision.localize` (depth) and :mod:`ur_rg2_vision.frame_store` (PNG files).
 
 Each colour image is searched for the ball; its depth image (same stamp, before or after it)
@@ -15,13 +15,11 @@ CPU here and falls behind at 30 Hz): no locks, and a save (~10 ms for both PNGs)
 the next frame a little.
 """
 
-from collections import OrderedDict
 from dataclasses import dataclass
 import os
 import sys
 import time
 
-import cv2
 from geometry_msgs.msg import Point, PointStamped
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
@@ -35,16 +33,11 @@ from ur_rg2_common.contract import IMAGE_QOS
 from ur_rg2_common.parameters import ParameterSpec, declare_parameters
 from ur_rg2_common.spin import keep_freed_memory, run_node
 
-from ur_rg2_vision.detector import (
-    DEFAULT_MIN_RADIUS_PX,
-    RED,
-    BallDetector,
-    Detection,
-    HsvRange,
-)
+from ur_rg2_vision.detector import DEFAULT_MIN_RADIUS_PX, RED, Detection, draw_detections
 from ur_rg2_vision.frame_store import save_frame
-from ur_rg2_vision.learned import BallModel, LearnedBallDetector
+from ur_rg2_vision.learned import BallModel, detection_config
 from ur_rg2_vision.localize import BallPosition, locate_first
+from ur_rg2_vision.pairing import FramePairs
 from ur_rg2_vision.ros_image import camera_matrix, image_to_depth, image_to_rgb, rgb_to_image
 
 NODE_NAME = 'ur_rg2_vision'
@@ -56,7 +49,6 @@ _WARN_PERIOD_S = 10.0  # a persisting input problem is logged again after this l
 # frames without camera_info are only worth a warning after this many, and this long.
 _INFO_GRACE_FRAMES = 10
 _INFO_GRACE_S = 2.0
-_DRAW_COLOR = (0, 255, 0)
 
 _PARAMETERS = (
     ParameterSpec('frames_dir', 'frames', 'Directory for saved frames (created when needed); '
@@ -74,7 +66,7 @@ _PARAMETERS = (
                   'the depth and the outline. A radius given is assumed: balls of another size '
                   'are not found.', bounds=(0.0, 10.0)),
     ParameterSpec('detector', 'color', 'How balls are found in the colour image: "color" (the '
-                  'HSV range above, round blobs) or "learned" (a trained YOLO model, ONNX, any '
+                  'HSV range above, round blobs) or "learned" (a trained network, ONNX, any '
                   'colour); the depth then gives the 3D centre either way.', read_only=True),
     ParameterSpec('model_dir', '', 'detector "learned": a directory written by train_detector '
                   '(model.onnx, detector.json); empty: the model shipped with the package.',
@@ -96,40 +88,8 @@ class _Frame:
     autosave: bool = False
 
 
-@dataclass(frozen=True)
-class _DetectionConfig:
-    detector: BallDetector | LearnedBallDetector
-    ball_radius: float
-
-
-def _detection_config(values: dict, model: BallModel | None) -> _DetectionConfig:
-    """Return the detection settings for parameter values; ValueError if they are invalid.
-
-    ``model``: the learned detector's model, None for the colour detector.
-    """
-    color = HsvRange(tuple(int(x) for x in values['hsv_lower']),
-                     tuple(int(x) for x in values['hsv_upper']))
-    if not values['ball_radius'] >= 0:
-        raise ValueError(f'ball_radius must be 0 (measure) or positive, got '
-                         f'{values["ball_radius"]}')
-    detector = (BallDetector(color, values['min_radius_px']) if model is None
-                else LearnedBallDetector(model, values['min_radius_px']))
-    return _DetectionConfig(detector, float(values['ball_radius']))
-
-
 def _stamp_key(header: Header) -> tuple[int, int]:
     return header.stamp.sec, header.stamp.nanosec
-
-
-def _annotate(rgb: np.ndarray, detections: list[Detection]) -> np.ndarray:
-    """Return a copy of ``rgb`` with each detected ball's circle and centre drawn."""
-    image = rgb.copy()
-    for detection in detections:
-        centre = (round(detection.u), round(detection.v))
-        cv2.circle(image, centre, max(1, round(detection.radius)), _DRAW_COLOR, 2,
-                   cv2.LINE_AA)
-        cv2.drawMarker(image, centre, _DRAW_COLOR, cv2.MARKER_CROSS, 8, 1)
-    return image
 
 
 class VisionNode(Node):
@@ -143,7 +103,7 @@ class VisionNode(Node):
                              f"{values['detector']!r}")
         # Loaded once: read-only, and a missing or broken model stops the start (ModelError).
         self._model = BallModel(values['model_dir']) if values['detector'] == 'learned' else None
-        self._config = _detection_config(values, self._model)
+        self._config = detection_config(values, self._model)
         # Absolute from here on: logs and save_frame answers say where the files really are.
         self._frames_dir = os.path.abspath(values['frames_dir'])
         self._save_every_n = values['save_every_n']
@@ -153,8 +113,7 @@ class VisionNode(Node):
         self._awaiting_info: _Frame | None = None  # a complete frame without a fitting info
         # (since, frames): when ball frames began to lack a fitting camera_info, how many did.
         self._info_missing: tuple[float, int] | None = None
-        self._pending: OrderedDict[tuple[int, int], _Frame] = OrderedDict()
-        self._early_depths: OrderedDict[tuple[int, int], np.ndarray] = OrderedDict()
+        self._pairs: FramePairs[_Frame] = FramePairs(_PENDING_FRAMES, _EARLY_DEPTHS)
         self._color_count = 0
         self._latest: _Frame | None = None  # the newest colour frame
         self._latest_complete: _Frame | None = None  # the newest one with its depth
@@ -184,7 +143,7 @@ class VisionNode(Node):
         values = {name: self.get_parameter(name).value for name in _DETECTION_PARAMETERS}
         values.update({p.name: p.value for p in parameters if p.name in values})
         try:
-            config = _detection_config(values, self._model)
+            config = detection_config(values, self._model)
         except ValueError as error:
             return SetParametersResult(successful=False, reason=str(error))
         self._config = config
@@ -229,15 +188,11 @@ class VisionNode(Node):
         every = self._save_every_n
         frame.autosave = every > 0 and frame.index % every == 0
         self._latest = frame
-        key = _stamp_key(msg.header)
-        depth = self._early_depths.pop(key, None)
-        if depth is None:
-            self._pending[key] = frame
-            while len(self._pending) > _PENDING_FRAMES:
-                _, stale = self._pending.popitem(last=False)
-                if stale.autosave:  # its depth never came: save the colour alone
-                    self._autosave(stale)
-        else:
+        depth, stale = self._pairs.add_color(_stamp_key(msg.header), frame)
+        for old in stale:
+            if old.autosave:  # its depth never came: save the colour alone
+                self._autosave(old)
+        if depth is not None:
             self._complete(frame, depth)  # the position before the (slower) image
         if self._image_pub.get_subscription_count() > 0:
             self._unpublished.append(frame)
@@ -246,7 +201,7 @@ class VisionNode(Node):
     def _publish_images(self) -> None:
         frames, self._unpublished = self._unpublished, []
         for frame in frames:
-            self._image_pub.publish(rgb_to_image(_annotate(frame.rgb, frame.detections),
+            self._image_pub.publish(rgb_to_image(draw_detections(frame.rgb, frame.detections),
                                                  frame.header))
 
     def _on_depth(self, msg: Image) -> None:
@@ -255,14 +210,9 @@ class VisionNode(Node):
         except ValueError as error:
             self._warn('depth', f'depth image ignored: {error}')
             return
-        key = _stamp_key(msg.header)
-        frame = self._pending.pop(key, None)
+        frame = self._pairs.add_depth(_stamp_key(msg.header), depth)
         if frame is not None:
             self._complete(frame, depth)
-            return
-        self._early_depths[key] = depth
-        while len(self._early_depths) > _EARLY_DEPTHS:
-            self._early_depths.popitem(last=False)
 
     def _complete(self, frame: _Frame, depth: np.ndarray) -> None:
         """Pair a colour frame with its depth: publish the ball's position, autosave."""

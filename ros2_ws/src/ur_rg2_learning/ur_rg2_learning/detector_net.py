@@ -1,0 +1,136 @@
+"""The ball detector's network: a compact one-class CenterNet in plain torch (this project's).
+
+An image goes through a small convolutional backbone (strides 2-32) and a feature pyramid
+back to stride 8, where a head predicts per cell a ball-centre heatmap (focal loss, Gaussian
+targets, as CenterNet: Zhou et al., "Objects as Points", 2019), the centre's sub-cell offset
+and the box's log size. :class:`Exported` decodes that in the graph, so the ONNX model gives
+``1 x 5 x N`` rows ``cx cy w h score`` in input pixels (``score`` 0 except at a heatmap's
+local maximum): the same layout as a YOLOv8 export with one class, which
+:class:`ur_rg2_vision.learned.BallModel` reads. Written for this project (Apache-2.0); no
+pretrained weights.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+from torch import nn
+from torch.nn import functional
+
+STRIDE = 8  # the output's cells, input pixels
+WIDTHS = (12, 20, 32, 48, 64)  # channels at strides 2, 4, 8, 16, 32
+HEAD = 32
+
+
+def _conv(cin: int, cout: int, stride: int = 1) -> nn.Sequential:
+    return nn.Sequential(nn.Conv2d(cin, cout, 3, stride, 1, bias=False), nn.BatchNorm2d(cout),
+                         nn.ReLU(inplace=True))
+
+
+class BallNet(nn.Module):
+    """Backbone, pyramid and head; ``forward`` gives the raw 5-channel map at stride 8."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        w = WIDTHS
+        self.stem = nn.Sequential(_conv(3, w[0], 2), _conv(w[0], w[1], 2))
+        self.down = nn.ModuleList(
+            nn.Sequential(_conv(w[i], w[i + 1], 2), _conv(w[i + 1], w[i + 1]))
+            for i in range(1, len(w) - 1))
+        # Top-down: each level's upsampled features added to the lateral ones, then smoothed.
+        self.lateral = nn.ModuleList(nn.Conv2d(w[i], w[i], 1) for i in range(2, len(w) - 1))
+        self.reduce = nn.ModuleList(nn.Conv2d(w[i + 1], w[i], 1) for i in range(2, len(w) - 1))
+        self.smooth = nn.ModuleList(_conv(w[i], w[i]) for i in range(2, len(w) - 1))
+        self.head = nn.Sequential(_conv(w[2], HEAD), nn.Conv2d(HEAD, 5, 1))
+        # Start with a low ball probability everywhere (the focal loss's usual prior).
+        nn.init.constant_(self.head[-1].bias, 0.0)
+        with torch.no_grad():
+            self.head[-1].bias[0] = -math.log((1 - 0.01) / 0.01)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """Return the raw map (B, 5, H/8, W/8) of a batch of RGB images scaled to 0-1."""
+        features = []
+        x = self.stem(x)
+        for stage in self.down:
+            x = stage(x)
+            features.append(x)  # strides 8, 16, 32
+        top = features[-1]
+        for level in range(len(features) - 2, -1, -1):
+            skip = features[level]
+            top = functional.interpolate(self.reduce[level](top), size=skip.shape[-2:],
+                                         mode='nearest')
+            top = self.smooth[level](top + self.lateral[level](skip))
+        return self.head(top)
+
+
+class Exported(nn.Module):
+    """The network with its decoding, as exported: RGB 0-1 in, ``1 x 5 x N`` out."""
+
+    def __init__(self, net: BallNet) -> None:
+        super().__init__()
+        self.net = net
+
+    def forward(self, images: torch.Tensor) -> torch.Tensor:
+        """Return (B, 5, N) rows cx cy w h score of a batch of RGB images scaled to 0-1."""
+        out = self.net(images)
+        heat = torch.sigmoid(out[:, :1])
+        peaks = heat * (functional.max_pool2d(heat, 3, 1, 1) == heat).to(heat.dtype)
+        height, width = out.shape[-2:]
+        ys = torch.arange(height, dtype=out.dtype).view(1, 1, height, 1).expand(1, 1, height,
+                                                                                 width)
+        xs = torch.arange(width, dtype=out.dtype).view(1, 1, 1, width).expand(1, 1, height,
+                                                                                width)
+        cx = (xs + out[:, 1:2]) * STRIDE
+        cy = (ys + out[:, 2:3]) * STRIDE
+        size = torch.exp(out[:, 3:5].clamp(max=6.0)) * STRIDE
+        rows = torch.cat([cx, cy, size, peaks], dim=1)
+        return rows.flatten(2)
+
+
+def targets(boxes: list[tuple[float, float, float, float] | None], height: int, width: int
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Return the training targets of a batch of labels, boxes (u0, v0, u1, v1) in input px.
+
+    Heatmaps (B, H, W) with a Gaussian at each ball's centre cell (sigma from its size),
+    regressions (B, 4) (offset x, y within the cell, log w, log h in cells) and the centre
+    cells' flat indices (B,), -1 without a ball.
+    """
+    rows, cols = height // STRIDE, width // STRIDE
+    heat = np.zeros((len(boxes), rows, cols), np.float32)
+    regress = np.zeros((len(boxes), 4), np.float32)
+    index = np.full(len(boxes), -1, np.int64)
+    ys, xs = np.mgrid[0:rows, 0:cols]
+    for i, box in enumerate(boxes):
+        if box is None:
+            continue
+        u0, v0, u1, v1 = box
+        cx, cy = (u0 + u1) / 2 / STRIDE, (v0 + v1) / 2 / STRIDE
+        w, h = max(u1 - u0, 1.0) / STRIDE, max(v1 - v0, 1.0) / STRIDE
+        col, row = min(int(cx), cols - 1), min(int(cy), rows - 1)
+        sigma = max(0.5, math.sqrt(w * h) / 6)
+        heat[i] = np.exp(-((xs - col) ** 2 + (ys - row) ** 2) / (2 * sigma * sigma))
+        heat[i, row, col] = 1.0
+        regress[i] = (cx - col, cy - row, math.log(w), math.log(h))
+        index[i] = row * cols + col
+    return heat, regress, index
+
+
+def loss(out: torch.Tensor, heat: torch.Tensor, regress: torch.Tensor, index: torch.Tensor
+         ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Return (heatmap focal loss, box L1 loss) of a raw output batch against its targets."""
+    logits = out[:, 0]
+    prob = torch.sigmoid(logits).clamp(1e-4, 1 - 1e-4)
+    positive = heat.eq(1.0).float()
+    pos = -torch.log(prob) * (1 - prob) ** 2 * positive
+    neg = -torch.log(1 - prob) * prob ** 2 * (1 - heat) ** 4 * (1 - positive)
+    count = positive.sum().clamp(min=1.0)
+    focal = (pos.sum() + neg.sum()) / count
+    has = index >= 0
+    if not bool(has.any()):
+        return focal, out.sum() * 0.0
+    flat = out[has, 1:5].flatten(2)  # (b, 4, H*W)
+    picked = flat.gather(2, index[has].view(-1, 1, 1).expand(-1, 4, 1)).squeeze(2)
+    box = functional.l1_loss(picked, regress[has], reduction='sum') / count
+    return focal, box

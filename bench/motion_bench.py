@@ -11,12 +11,15 @@
   Pick policy (``policy_dir:=pick``), ``policy/run`` until ``policy/driving`` falls, on the
   placements of the region Pick trains on, judged by the same ground truth.
 
-Run alone with ``python -m bench.motion_bench [--picks N] [--policy-picks N]``.
+Run alone with ``python -m bench.motion_bench [--parts ...] [--picks N] [--policy-picks N]
+[--seed N] [--region pick_ball|pick_env]`` (``--help`` says more); ``python -m bench motion``
+runs it with its defaults. Each row names its seed and region.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+import argparse
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager, nullcontext
 import math
 import os
@@ -89,14 +92,31 @@ def ik_solve_times(model: str = 'ur5') -> tuple[list[float], int]:
     return times, refused
 
 
-def ball_placement(rng: np.random.Generator) -> tuple[float, float, float]:
-    """Return a ball position on the floor (world), in the arm's reach and the camera's view.
+# Where the ball is placed (world, on the floor), as (distance from the base axis, m) and
+# (heading, rad) ranges: pick_ball's region is an annulus sector in front of the arm, on the
+# camera's side, clear of the pedestal; pick_env is where the Pick environment places balls.
+REGIONS = {
+    'pick_ball': ((0.35, 0.6), (-1.3, 0.2)),
+    'pick_env': (tuple(BALL_DISTANCE), tuple(BALL_HEADING)),
+}
 
-    An annulus sector in front of the arm, on the camera's side, clear of the pedestal.
-    """
-    radius = rng.uniform(0.35, 0.6)
-    angle = rng.uniform(-1.3, 0.2)
-    return (radius * math.cos(angle), radius * math.sin(angle), BALL_RADIUS)
+
+def region_name(region: str) -> str:
+    """Describe a region for a row: its name and ranges."""
+    (near, far), (low, high) = REGIONS[region]
+    return (f'region {region}: {near:g}-{far:g} m, {math.degrees(low):.0f} to '
+            f'{math.degrees(high):.0f} deg')
+
+
+def placement(region: str) -> Callable[[np.random.Generator], tuple[float, float, float]]:
+    """Return a function drawing seeded ball positions (world) in ``region``."""
+    distance, heading = REGIONS[region]
+
+    def draw(rng: np.random.Generator) -> tuple[float, float, float]:
+        radius = rng.uniform(*distance)
+        angle = rng.uniform(*heading)
+        return (radius * math.cos(angle), radius * math.sin(angle), BALL_RADIUS)
+    return draw
 
 
 class _Probe:
@@ -214,32 +234,27 @@ def _graph(domain_id: int, camera: bool, policy: bool = False) -> Iterator[_Prob
         yield _Probe(node)
 
 
-def policy_placement(rng: np.random.Generator) -> tuple[float, float, float]:
-    """Return a ball position (world) in the region the Pick environment places balls in."""
-    radius = rng.uniform(*BALL_DISTANCE)
-    angle = rng.uniform(*BALL_HEADING)
-    return (radius * math.cos(angle), radius * math.sin(angle), BALL_RADIUS)
-
-
-def pick_trials(count: int, domain_id: int, policy: bool = False) -> dict:
-    """Run ``count`` seeded picks; return the tallies and the times of the claimed successes.
+def pick_trials(count: int, domain_id: int, policy: bool = False, seed: int = SEED,
+                region: str = 'pick_ball') -> dict:
+    """Run ``count`` picks placed in ``region`` by ``seed``; return tallies and times.
 
     ``policy``: the learned pick (``policy/run``) instead of ``pick_ball``; it claims no
     success in its answer, so a held ball is its success.
     """
-    rng = np.random.default_rng(SEED)
+    rng = np.random.default_rng(seed)
+    draw = placement(region)
     tally = {'success': 0, 'false_claim': 0, 'failed': 0, 'not_seen': 0, 'times': [],
              'sim_times': [], 'failures': []}
     with _graph(domain_id, camera=True, policy=policy) as probe:
         for trial in range(count):
-            placement = policy_placement(rng) if policy else ball_placement(rng)
+            at = draw(rng)
             # Each pick starts where the last one ended (the ball up in the gripper): drop it,
             # then place it anew. Only the first starts from home.
             probe.call('gripper/open')
-            probe.set_ball(placement)
+            probe.set_ball(at)
             # Frames rendered before the move may still come: count those after the sim has
             # the ball there.
-            probe.wait(lambda at=placement: probe.truth is not None and math.dist(
+            probe.wait(lambda at=at: probe.truth is not None and math.dist(
                 (probe.truth.pose.position.x, probe.truth.pose.position.y), at[:2]) < 0.005,
                 10.0, 'the ball at its placement')
             with probe.changed:
@@ -256,7 +271,7 @@ def pick_trials(count: int, domain_id: int, policy: bool = False) -> dict:
             held = probe.held()
             if policy and answer.success:
                 answer.success = held
-            print(f'pick {trial + 1}/{count} at {placement[0]:.3f} {placement[1]:.3f}: '
+            print(f'pick {trial + 1}/{count} at {at[0]:.3f} {at[1]:.3f}: '
                   f"{'held' if held else 'not held'}, {took:.1f} s ({sim_took:.1f} s simulated): "
                   f'{answer.message}', file=sys.stderr, flush=True)
             if answer.success and held:
@@ -265,10 +280,10 @@ def pick_trials(count: int, domain_id: int, policy: bool = False) -> dict:
                 tally['sim_times'].append(sim_took)
             elif answer.success:
                 tally['false_claim'] += 1
-                tally['failures'].append(f'{placement}: claimed, not held: {answer.message}')
+                tally['failures'].append(f'{at}: claimed, not held: {answer.message}')
             else:
                 tally['failed'] += 1
-                tally['failures'].append(f'{placement}: {answer.message}')
+                tally['failures'].append(f'{at}: {answer.message}')
     return tally
 
 
@@ -314,41 +329,64 @@ def jog_latencies(domain_id: int) -> list[float]:
     return latencies
 
 
-def run(picks: int = PICKS, policy_picks: int = POLICY_PICKS) -> list[tuple[str, str, str]]:
-    """Return the benchmark rows (metric, measured, target)."""
-    times, _ = ik_solve_times()
-    p50, p99 = np.percentile(np.array(times) * 1e3, [50, 99])
-    rows = [(f'IK solve (UR5, {len(times)} random poses, floor and pedestal checks) p50 / p99',
-             f'{p50:.3f} / {p99:.3f} ms', f'p99 <= {IK_TARGET_MS} ms')]
+PARTS = ('ik', 'jog', 'pick', 'policy')
+
+
+def run(picks: int = PICKS, policy_picks: int = POLICY_PICKS, parts: tuple[str, ...] = PARTS,
+        seed: int = SEED, region: str | None = None) -> list[tuple[str, str, str]]:
+    """Return the benchmark rows (metric, measured, target) of ``parts``.
+
+    ``region``: where both picks place the ball (default: pick_ball's for pick_ball, the Pick
+    environment's for the learned pick).
+    """
+    rows = []
     domain_id = 100 + os.getpid() % 40
-    jog = np.array(jog_latencies(domain_id)) * 1e3
-    load = f'load {os.getloadavg()[0]:.1f}'
-    rows.append(('tool mode key → tool_jog → the arm moving (joint_states), p50 / p99',
-                 f'{np.percentile(jog, 50):.1f} / {np.percentile(jog, 99):.1f} ms '
-                 f'({len(jog)} keys, {load})', f'p99 <= {JOG_TARGET_MS:g} ms'))
-    tally = pick_trials(picks, domain_id + 1)
-    tried = tally['success'] + tally['false_claim'] + tally['failed']
-    rate = tally['success'] / tried if tried else float('nan')
-    rows.append((f'pick_ball success over {tried} seeded placements (real-time factor 1)',
-                 f"{rate:.0%} ({tally['success']} held, {tally['failed']} refused or missed, "
-                 f"{tally['false_claim']} false claims; {tally['not_seen']} not seen)",
-                 f'>= {PICK_SUCCESS_TARGET:.0%}, 0 false claims'))
-    median = statistics.median(tally['times']) if tally['times'] else float('nan')
-    simulated = statistics.median(tally['sim_times']) if tally['sim_times'] else float('nan')
-    rows.append(('pick_ball time, median (service call to answer, real-time factor 1)',
-                 f'{median:.1f} s ({simulated:.1f} s of simulation time; {load})',
-                 f'<= {PICK_TIME_TARGET_S:g} s'))
-    for failure in tally['failures']:
-        print(f'pick: {failure}', file=sys.stderr)
-    if policy_picks:
-        rows += policy_pick_rows(policy_picks, domain_id + 2)
+    if 'ik' in parts:
+        times, _ = ik_solve_times()
+        p50, p99 = np.percentile(np.array(times) * 1e3, [50, 99])
+        rows.append((f'IK solve (UR5, {len(times)} random poses, seed {SEED}, floor and '
+                     'pedestal checks) p50 / p99', f'{p50:.3f} / {p99:.3f} ms '
+                     f'(load {os.getloadavg()[0]:.1f})', f'p99 <= {IK_TARGET_MS} ms'))
+    if 'jog' in parts:
+        jog = np.array(jog_latencies(domain_id)) * 1e3
+        rows.append(('tool mode key → tool_jog → the arm moving (joint_states), p50 / p99',
+                     f'{np.percentile(jog, 50):.1f} / {np.percentile(jog, 99):.1f} ms '
+                     f'({len(jog)} keys, load {os.getloadavg()[0]:.1f})',
+                     f'p99 <= {JOG_TARGET_MS:g} ms'))
+    if 'pick' in parts and picks:
+        rows += pick_rows(picks, domain_id + 1, seed, region or 'pick_ball')
+    if 'policy' in parts and policy_picks:
+        rows += policy_pick_rows(policy_picks, domain_id + 2, seed, region or 'pick_env')
     return rows
 
 
-def policy_pick_rows(picks: int, domain_id: int) -> list[tuple[str, str, str]]:
-    """Return the rows of the learned pick (policy_dir:=pick) in the live graph."""
+def pick_rows(picks: int, domain_id: int, seed: int, region: str) -> list[tuple[str, str, str]]:
+    """Return the rows of pick_ball over ``picks`` placements."""
+    tally = pick_trials(picks, domain_id, seed=seed, region=region)
     load = f'load {os.getloadavg()[0]:.1f}'
-    tally = pick_trials(picks, domain_id, policy=True)
+    tried = tally['success'] + tally['false_claim'] + tally['failed']
+    rate = tally['success'] / tried if tried else float('nan')
+    median = statistics.median(tally['times']) if tally['times'] else float('nan')
+    simulated = statistics.median(tally['sim_times']) if tally['sim_times'] else float('nan')
+    for failure in tally['failures']:
+        print(f'pick: {failure}', file=sys.stderr)
+    return [
+        (f'pick_ball success over {tried} placements (seed {seed}, {region_name(region)}; '
+         'real-time factor 1)',
+         f"{rate:.0%} ({tally['success']} held, {tally['failed']} refused or missed, "
+         f"{tally['false_claim']} false claims; {tally['not_seen']} not seen; {load})",
+         f'>= {PICK_SUCCESS_TARGET:.0%}, 0 false claims'),
+        ('pick_ball time, median (service call to answer, real-time factor 1)',
+         f'{median:.1f} s ({simulated:.1f} s of simulation time; {load})',
+         f'<= {PICK_TIME_TARGET_S:g} s'),
+    ]
+
+
+def policy_pick_rows(picks: int, domain_id: int, seed: int = SEED,
+                     region: str = 'pick_env') -> list[tuple[str, str, str]]:
+    """Return the rows of the learned pick (policy_dir:=pick) in the live graph."""
+    tally = pick_trials(picks, domain_id, policy=True, seed=seed, region=region)
+    load = f'load {os.getloadavg()[0]:.1f}'
     tried = tally['success'] + tally['failed']
     rate = tally['success'] / tried if tried else float('nan')
     median = statistics.median(tally['times']) if tally['times'] else float('nan')
@@ -357,17 +395,36 @@ def policy_pick_rows(picks: int, domain_id: int) -> list[tuple[str, str, str]]:
         print(f'policy pick: {failure}', file=sys.stderr)
     return [
         (f'learned Pick (policy node, policy_dir:=pick) in the graph: ball held over {tried} '
-         'seeded placements (real-time factor 1, camera)',
-         f"{rate:.0%} ({tally['success']} held; {tally['not_seen']} not seen)", '>= 90%'),
+         f'placements (seed {seed}, {region_name(region)}; real-time factor 1, camera)',
+         f"{rate:.0%} ({tally['success']} held; {tally['not_seen']} not seen; {load})",
+         '>= 90%'),
         ('learned Pick time, median (policy/run to the episode end, real-time factor 1)',
          f'{median:.1f} s ({simulated:.1f} s of simulation time; {load})', '-'),
     ]
 
 
-if __name__ == '__main__':
+def main(argv: list[str] | None = None) -> int:
+    """Parse the options, run the parts asked for and print their rows."""
     from bench.__main__ import print_table
 
-    count = int(sys.argv[sys.argv.index('--picks') + 1]) if '--picks' in sys.argv else PICKS
-    policy_count = (int(sys.argv[sys.argv.index('--policy-picks') + 1])
-                    if '--policy-picks' in sys.argv else POLICY_PICKS)
-    print_table(run(count, policy_count))
+    parser = argparse.ArgumentParser(prog='python -m bench.motion_bench',
+                                     description=__doc__.splitlines()[0])
+    parser.add_argument('--parts', nargs='+', choices=PARTS, default=list(PARTS),
+                        help='what to measure (default: all)')
+    parser.add_argument('--picks', type=int, default=PICKS,
+                        help=f'pick_ball placements (default {PICKS})')
+    parser.add_argument('--policy-picks', type=int, default=POLICY_PICKS,
+                        help=f'learned Pick placements (default {POLICY_PICKS})')
+    parser.add_argument('--seed', type=int, default=SEED,
+                        help=f'seed of the ball placements (default {SEED})')
+    parser.add_argument('--region', choices=sorted(REGIONS),
+                        help="where both picks place the ball (default: pick_ball's for "
+                             "pick_ball, the Pick environment's for the learned pick)")
+    options = parser.parse_args(argv)
+    print_table(run(options.picks, options.policy_picks, tuple(options.parts), options.seed,
+                    options.region))
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

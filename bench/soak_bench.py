@@ -35,7 +35,7 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
-from bench.motion_bench import ball_placement
+from bench.motion_bench import placement
 from bench.processes import (
     call_service,
     node_process,
@@ -143,8 +143,9 @@ class _User:
 
     def pick(self, rng: np.random.Generator) -> None:
         self.trigger('gripper/open')
+        position = [float(v) for v in placement('pick_ball')(rng)]
         request = SetParameters.Request(parameters=[Parameter(
-            'ball_position', value=[float(v) for v in ball_placement(rng)]).to_parameter_msg()])
+            'ball_position', value=position).to_parameter_msg()])
         self.call('ur_rg2_sim/set_parameters', SetParameters, request)
         with self.lock:
             wanted = self.seen + 6

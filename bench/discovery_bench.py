@@ -1,0 +1,87 @@
+"""Benchmark of discovery as ROS 2's own tools see it: ``ros2 node list`` beside a running graph.
+
+The graph (``ros2 launch ur_rg2_bringup graph.launch.py``, headless, a private domain) is up
+and every node has said it is ready; then ``ros2 node list --no-daemon --spin-time 1`` runs
+``TRIES`` times, and ``ros2 node list`` as many times through a fresh daemon (``ros2 daemon
+stop`` before each: the first call after a daemon starts is the one that missed nodes). A try
+counts when it lists all four nodes. Run alone with ``python -m bench.discovery_bench``.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+import re
+import signal
+import subprocess
+import tempfile
+import time
+
+from bench.processes import bench_env
+
+ROOT = Path(__file__).resolve().parents[1]
+NODE_NAMES = ('/ur_rg2_sim', '/ur_rg2_vision', '/ur_rg2_motion', '/ur_rg2_viewer')
+READY = (r'\[ur_rg2_sim\]: simulating', r'\[ur_rg2_motion\]: ready',
+         r'\[ur_rg2_vision\]: looking for the ball', r'\[ur_rg2_viewer\]: live view')
+TRIES = 20
+TIMEOUT_S = 120.0
+DOMAIN_ID = 152
+
+
+def _lists_all(command: list[str], env: dict[str, str]) -> bool:
+    """Run ``command``; return whether it listed every node of the graph."""
+    listed = subprocess.run(command, env=env, capture_output=True, text=True, timeout=60,
+                            check=False).stdout.split()
+    return all(name in listed for name in NODE_NAMES)
+
+
+def _load() -> str:
+    return Path('/proc/loadavg').read_text().split()[0]
+
+
+def run() -> list[tuple[str, str, str]]:
+    """Start the graph, count the ``ros2 node list`` calls that see all of it."""
+    env = bench_env(DOMAIN_ID)
+    daemon_stop = ['ros2', 'daemon', 'stop']
+    with tempfile.TemporaryFile('w+') as log:
+        graph = subprocess.Popen(['ros2', 'launch', 'ur_rg2_bringup', 'graph.launch.py',
+                                  'port:=0'], env=env, stdin=subprocess.DEVNULL, stdout=log,
+                                 stderr=subprocess.STDOUT, start_new_session=True)
+        try:
+            deadline = time.monotonic() + TIMEOUT_S
+            while True:
+                log.seek(0)
+                text = log.read()
+                if all(re.search(pattern, text) for pattern in READY):
+                    break
+                if graph.poll() is not None or time.monotonic() > deadline:
+                    raise RuntimeError(f'the graph did not come up:\n{text[-3000:]}')
+                time.sleep(0.2)
+            loads = [_load()]
+            direct = sum(_lists_all(['ros2', 'node', 'list', '--no-daemon', '--spin-time', '1'],
+                                    env) for _ in range(TRIES))
+            loads.append(_load())
+            fresh = 0
+            for _ in range(TRIES):
+                subprocess.run(daemon_stop, env=env, capture_output=True, timeout=60,
+                               check=False)
+                fresh += _lists_all(['ros2', 'node', 'list'], env)
+            loads.append(_load())
+        finally:
+            subprocess.run(daemon_stop, env=env, capture_output=True, timeout=60, check=False)
+            if graph.poll() is None:
+                os.killpg(graph.pid, signal.SIGINT)
+            graph.wait(timeout=60)
+    load = f'load {min(loads)}-{max(loads)}'
+    return [
+        ('`ros2 node list --no-daemon --spin-time 1` lists all 4 nodes of the running graph',
+         f'{direct} of {TRIES} ({load})', f'>= 19 of {TRIES}'),
+        ('`ros2 node list` through a fresh daemon (`ros2 daemon stop` first) lists all 4',
+         f'{fresh} of {TRIES} ({load})', f'{TRIES} of {TRIES}'),
+    ]
+
+
+if __name__ == '__main__':
+    from bench.__main__ import print_table
+
+    print_table(run())

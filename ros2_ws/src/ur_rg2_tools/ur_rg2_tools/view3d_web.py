@@ -13,6 +13,7 @@ served); ``/vendor/...`` the vendored modules.
 
 from __future__ import annotations
 
+import asyncio
 from collections.abc import Callable, Sequence
 import importlib.resources
 import math
@@ -134,7 +135,7 @@ async def _scene(request: web.Request) -> web.Response:
 
 async def _cloud(request: web.Request) -> web.Response:
     # Off the event loop: it decodes a depth image and projects its points.
-    cloud = await request.app.loop.run_in_executor(None, request.app[SCENE].cloud)
+    cloud = await asyncio.get_running_loop().run_in_executor(None, request.app[SCENE].cloud)
     if cloud is None:
         raise web.HTTPServiceUnavailable(text='no depth image and camera_info yet\n')
     response = web.json_response(cloud, headers=_NO_CACHE)

@@ -16,9 +16,9 @@ $('view').appendChild(renderer.domElement);
 const scene = new THREE.Scene();
 scene.background = new THREE.Color(0x1d2126);
 const camera = new THREE.PerspectiveCamera(45, 1, 0.01, 50);
-camera.position.set(1.6, 1.2, 1.4);
+camera.position.set(2.6, 2.2, -2.0);  // ROS (2.6, 2.0, 2.2): across from the sim camera
 const controls = new OrbitControls(camera, renderer.domElement);
-controls.target.set(0.2, 0.3, 0);
+controls.target.set(0.5, 0.2, 0.5);
 controls.update();
 scene.add(new THREE.HemisphereLight(0xffffff, 0x444444, 2.0));
 const sun = new THREE.DirectionalLight(0xffffff, 1.5);
@@ -50,9 +50,11 @@ world.add(pickTarget);
 const frustum = new THREE.LineSegments(new THREE.BufferGeometry(),
   new THREE.LineBasicMaterial({ color: 0x9ad0ff }));
 frustum.matrixAutoUpdate = false;
+frustum.frustumCulled = false;  // its geometry changes: no stale bounding sphere
 world.add(frustum);
 const cloud = new THREE.Points(new THREE.BufferGeometry(),
   new THREE.PointsMaterial({ size: 0.012, vertexColors: true }));
+cloud.frustumCulled = false;
 world.add(cloud);
 
 let robot = null;

@@ -167,7 +167,8 @@ def no_balls(count: int, seed: int = 0, sizes: tuple[float, float] = (0.015, 0.0
 
 def hard_scenes(count: int, seed: int = 0, ball_share: float = 0.7,
                 radii: tuple[float, float] = (0.015, 0.08),
-                distances: tuple[float, float] = (0.5, 2.0)) -> Iterator[Shot]:
+                distances: tuple[float, float] = (0.5, 2.0),
+                groups: Sequence[str] = ()) -> Iterator[Shot]:
     """Yield ``count`` frames of scenes the sim never makes by itself (the held-out hard set).
 
     Each from a random camera pose (0.6-2.2 m from a point on the floor near the arm, 25-65
@@ -175,7 +176,9 @@ def hard_scenes(count: int, seed: int = 0, ball_share: float = 0.7,
     on a floor of a random colour under a random light, with 1-4 objects that are not balls
     (cubes, boxes, flat discs of random sizes and colours, a third in the ball's colour) and,
     in ``ball_share`` of them, one ball of a random colour (red among them) and radius, resting
-    on the floor in view. ``centre`` is None in the frames without a ball.
+    on the floor in view. ``centre`` is None in the frames without a ball. ``groups``: the
+    ball's colour from these colour groups in turn instead (plain ones: pastel, white, grey,
+    dark...), its value at least 0.15 above or below the floor's, plain to the eye.
     """
     from ur_rg2_vision.dataset import Camera as PlanCamera
     from ur_rg2_vision.dataset import plan_distractors
@@ -195,13 +198,19 @@ def hard_scenes(count: int, seed: int = 0, ball_share: float = 0.7,
                                                  rng.uniform(0.25, 0.95))) * 255
             light = rng.normal(size=3)
             light[2] = abs(light[2]) + 0.3
+            if groups:
+                color = group_color(rng, groups[index % len(groups)])
+                while abs(max(color[:3]) - floor.max() / 255) < 0.15:
+                    floor = np.array(colorsys.hsv_to_rgb(
+                        rng.uniform(0, 1), rng.uniform(0, 0.7), rng.uniform(0.25, 0.95))) * 255
             config = CameraConfig(position=tuple(position), look_at=tuple(target),
                                   floor_colors=(tuple(floor), tuple(0.85 * floor)),
                                   light_direction=tuple(light))
             camera = Camera(world, config)
-            color = (RED if rng.uniform() < 0.2 else
-                     (*colorsys.hsv_to_rgb(rng.uniform(0, 1), rng.uniform(0.5, 1),
-                                           rng.uniform(0.5, 1)), 1.0))
+            if not groups:
+                color = (RED if rng.uniform() < 0.2 else
+                         (*colorsys.hsv_to_rgb(rng.uniform(0, 1), rng.uniform(0.5, 1),
+                                               rng.uniform(0.5, 1)), 1.0))
             radius = float(np.exp(rng.uniform(*np.log(radii))))
             point = None
             if rng.uniform() < ball_share:

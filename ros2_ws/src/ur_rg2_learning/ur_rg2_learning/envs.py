@@ -55,6 +55,7 @@ GRIPPER_TIMEOUT = 1.5  # s: the RG2 closes its full 110 mm in under 1 s
 # node's pick does (the scripted demonstrator's grasp, and the grasped starts').
 GRASP_HEIGHT = 0.003  # m
 GRASP_GAP = 0.002  # m: a grasped start's fingers close from this far apart round the ball
+NEAR_BALL = 0.15  # m, ball centre to TCP: nearer, Pick steps the physics finely (a grasp)
 
 
 _DOWN = gripper_down((0.0, 0.0, 0.0), 0.0)
@@ -310,8 +311,11 @@ class PickEnv(UrRg2Env):
     floor, held between the closed fingers.
     """
 
-    # Grasps need shorter physics steps than free arm motion: 80 Hz holds the ball.
+    # Grasps need shorter physics steps than free arm motion: 80 Hz holds the ball. Where no
+    # grasp can happen (the RG2 open, the ball further than NEAR_BALL from the TCP) 40 Hz
+    # moves the arm as well, for half the physics.
     substeps = 8
+    free_substeps = 4
     gripper_action = True
 
     def _sizes(self) -> tuple[int, int]:
@@ -320,7 +324,8 @@ class PickEnv(UrRg2Env):
     def __init__(self, robot_model: str = 'ur5', grasped_share: float = 0.0) -> None:
         super().__init__(robot_model)
         self._settings['grasped_share'] = self.grasped_share = grasped_share
-        self._cubic = np.arange(1, self.substeps + 1) / self.substeps
+        self._cubics = {n: np.arange(1, n + 1) / n for n in (self.substeps, self.free_substeps)}
+        self._rate_substeps = self.substeps  # the world's physics rate, in substeps per step
         limits = [self.world.limits[name] for name in ARM_JOINTS]
         self._lower = np.array([limit.lower for limit in limits])
         self._upper = np.array([limit.upper for limit in limits])
@@ -354,6 +359,7 @@ class PickEnv(UrRg2Env):
         tcp = ball + (0.0, 0.0, GRASP_HEIGHT)
         joints = start_joints(self.arm, tcp)
         world = self.world
+        self._use_substeps(self.substeps)
         world.set_arm_positions(dict(zip(ARM_JOINTS, joints.tolist())))
         world.set_gripper_opening(2 * BALL_RADIUS + GRASP_GAP)
         world.set_ball_position((ball + self._base).tolist())
@@ -386,8 +392,10 @@ class PickEnv(UrRg2Env):
         TCP where the policy sent it: fed the speed forward and left to run on (Reach's way),
         the arm overshot a fast descent by up to 2 cm, closing the fingers over the ball's top.
         """
+        near = self._closed or np.linalg.norm(self._ball - self._tcp) < NEAR_BALL
+        self._use_substeps(self.substeps if near else self.free_substeps)
         # The whole cubic at once (one NumPy computation, clamped to the joint limits once).
-        s = self._cubic
+        s = self._cubics[self._rate_substeps]
         positions = np.clip(previous + np.outer(s * s * (3.0 - 2.0 * s), joints - previous),
                             self._lower, self._upper).tolist()
         velocities = np.outer(6.0 * s * (1.0 - s) * CONTROL_RATE, joints - previous).tolist()
@@ -401,10 +409,15 @@ class PickEnv(UrRg2Env):
             # policy node waits for it too. So no step's observation is of fingers half-way,
             # and a policy needs no waiting of its own for the grasp. Fingers that nothing can
             # be in the way of get there at once (the same end, without 100 physics steps).
-            for _ in range(round(GRIPPER_TIMEOUT * CONTROL_RATE * self.substeps)):
+            for _ in range(round(GRIPPER_TIMEOUT / world.dt)):
                 world.step()
                 if world.gripper_stopped():
                     break
+
+    def _use_substeps(self, substeps: int) -> None:
+        if substeps != self._rate_substeps:
+            self.world.set_physics_rate(CONTROL_RATE * substeps)
+            self._rate_substeps = substeps
 
     def _observe(self) -> dict[str, np.ndarray]:
         # Once per step (and at the reset, where the ball lies still where it was put).

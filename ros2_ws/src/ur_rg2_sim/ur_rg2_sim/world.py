@@ -157,6 +157,7 @@ class SimWorld:
         self._arm_efforts = [self.limits[name].effort for name in ARM_JOINTS]
         self._arm_speeds = [self.limits[name].velocity for name in ARM_JOINTS]
         self._finger_indices = [self._joint_index[name] for name in GRIPPER_JOINTS]
+        self._caps_at_limits = False  # whether every arm motor's speed cap is its limit
         self._link_name = {index: name for name, index in self._link_index.items()}
         self._link_name[-1] = self._p.getBodyInfo(self.robot)[0].decode()
         self._movable = [i for i in range(self._p.getNumJoints(self.robot))
@@ -258,6 +259,7 @@ class SimWorld:
         """
         applied = {name: self.clamp(name, value) for name, value in targets.items()}
         self.arm_targets.update(applied)
+        self._caps_at_limits = len(applied) == len(ARM_JOINTS) or self._caps_at_limits
         for name, target in applied.items():
             limit = self.limits[name]
             self._p.setJointMotorControl2(
@@ -270,13 +272,17 @@ class SimWorld:
         """Set every arm joint's target and fed-forward speed, ``ARM_JOINTS`` order, unclamped.
 
         For callers that clamp once for many physics steps (the learning environments, each
-        substep of a step): no dicts, no clamping, one motor call per joint.
+        substep of a step): one pybullet call. Its motors keep the speed caps set last
+        (setJointMotorControlArray takes none): the velocity limits, set again here first if
+        :meth:`move_arm` lowered them.
         """
-        call = self._p.setJointMotorControl2
-        for index, effort, speed, position, velocity in zip(
-                self._arm_indices, self._arm_efforts, self._arm_speeds, positions, velocities):
-            call(self.robot, index, pybullet.POSITION_CONTROL, targetPosition=position,
-                 force=effort, maxVelocity=speed, targetVelocity=velocity)
+        if not self._caps_at_limits:
+            self.set_arm_targets(dict(zip(ARM_JOINTS, positions)),
+                                 dict(zip(ARM_JOINTS, velocities)))
+            return
+        self._p.setJointMotorControlArray(
+            self.robot, self._arm_indices, pybullet.POSITION_CONTROL, targetPositions=positions,
+            targetVelocities=velocities, forces=self._arm_efforts)
         self.arm_targets.update(zip(ARM_JOINTS, positions))
 
     def move_arm(self, targets: Mapping[str, float]) -> dict[str, float]:
@@ -294,6 +300,7 @@ class SimWorld:
         times = {name: abs(self.arm_targets[name] - position) / self.limits[name].velocity
                  for name, position in zip(ARM_JOINTS, positions)}
         slowest = max(times.values())
+        self._caps_at_limits = False
         for name in ARM_JOINTS:
             limit = self.limits[name]
             share = times[name] / slowest if slowest > 0 else 1.0
@@ -443,6 +450,11 @@ class SimWorld:
             for link in ('rg2_left_finger', 'rg2_right_finger'))
 
     # -- state --------------------------------------------------------------------------------
+
+    def set_physics_rate(self, rate: float) -> None:
+        """Make the physics step 1 / ``rate`` s from now on (the learning environments' choice)."""
+        self.dt = 1.0 / rate
+        self._p.setPhysicsEngineParameter(fixedTimeStep=self.dt)
 
     def step(self) -> None:
         """Advance the simulation by one physics step."""

@@ -40,7 +40,7 @@ from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 from ur_rg2_common.contract import LATCHED_QOS
-from ur_rg2_common.tf_buffer import FrameLookupError, TransformBuffer, quaternion_from_matrix
+from ur_rg2_common.tf_buffer import FrameLookupError, TransformBuffer, set_pose
 from ur_rg2_learning.envs import BALL_DISTANCE, BALL_HEADING
 from ur_rg2_motion.kinematics import ArmKinematics, Box, KinematicsError
 from ur_rg2_motion.planning import gripper_down
@@ -303,9 +303,7 @@ def jog_latencies(domain_id: int) -> list[float]:
         while True:
             msg = PoseStamped()
             msg.header.frame_id = 'base_link'
-            p, q = msg.pose.position, msg.pose.orientation
-            p.x, p.y, p.z = (float(v) for v in start[:3, 3])
-            q.x, q.y, q.z, q.w = quaternion_from_matrix(start)
+            set_pose(msg.pose, start)
             probe.command.publish(msg)
             try:
                 tcp = probe.tree.lookup('base_link', 'rg2_tcp')
@@ -360,16 +358,21 @@ def run(picks: int = PICKS, policy_picks: int = POLICY_PICKS, parts: tuple[str, 
     return rows
 
 
-def pick_rows(picks: int, domain_id: int, seed: int, region: str) -> list[tuple[str, str, str]]:
-    """Return the rows of pick_ball over ``picks`` placements."""
-    tally = pick_trials(picks, domain_id, seed=seed, region=region)
-    load = f'load {os.getloadavg()[0]:.1f}'
+def _summary(tally: dict, what: str) -> tuple[int, float, float, float, str]:
+    """Print the failures; return (tried, success rate, median s, median simulated s, load)."""
+    for failure in tally['failures']:
+        print(f'{what}: {failure}', file=sys.stderr)
     tried = tally['success'] + tally['false_claim'] + tally['failed']
     rate = tally['success'] / tried if tried else float('nan')
     median = statistics.median(tally['times']) if tally['times'] else float('nan')
     simulated = statistics.median(tally['sim_times']) if tally['sim_times'] else float('nan')
-    for failure in tally['failures']:
-        print(f'pick: {failure}', file=sys.stderr)
+    return tried, rate, median, simulated, f'load {os.getloadavg()[0]:.1f}'
+
+
+def pick_rows(picks: int, domain_id: int, seed: int, region: str) -> list[tuple[str, str, str]]:
+    """Return the rows of pick_ball over ``picks`` placements."""
+    tally = pick_trials(picks, domain_id, seed=seed, region=region)
+    tried, rate, median, simulated, load = _summary(tally, 'pick')
     return [
         (f'pick_ball success over {tried} placements (seed {seed}, {region_name(region)}; '
          'real-time factor 1)',
@@ -386,13 +389,7 @@ def policy_pick_rows(picks: int, domain_id: int, seed: int = SEED,
                      region: str = 'pick_env') -> list[tuple[str, str, str]]:
     """Return the rows of the learned pick (policy_dir:=pick) in the live graph."""
     tally = pick_trials(picks, domain_id, policy=True, seed=seed, region=region)
-    load = f'load {os.getloadavg()[0]:.1f}'
-    tried = tally['success'] + tally['failed']
-    rate = tally['success'] / tried if tried else float('nan')
-    median = statistics.median(tally['times']) if tally['times'] else float('nan')
-    simulated = statistics.median(tally['sim_times']) if tally['sim_times'] else float('nan')
-    for failure in tally['failures']:
-        print(f'policy pick: {failure}', file=sys.stderr)
+    tried, rate, median, simulated, load = _summary(tally, 'policy pick')
     return [
         (f'learned Pick (policy node, policy_dir:=pick) in the graph: ball held over {tried} '
          f'placements (seed {seed}, {region_name(region)}; real-time factor 1, camera)',

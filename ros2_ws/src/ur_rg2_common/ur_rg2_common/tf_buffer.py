@@ -37,6 +37,13 @@ def transform_matrix(transform) -> np.ndarray:
     return pose_matrix((t.x, t.y, t.z), (r.x, r.y, r.z, r.w))
 
 
+def set_pose(pose, matrix: np.ndarray) -> None:
+    """Write a 4x4 pose matrix into a geometry_msgs/Pose's position and orientation."""
+    p, q = pose.position, pose.orientation
+    p.x, p.y, p.z = (float(v) for v in matrix[:3, 3])
+    q.x, q.y, q.z, q.w = quaternion_from_matrix(matrix)
+
+
 def quaternion_from_matrix(matrix: np.ndarray) -> tuple[float, float, float, float]:
     """Return the xyzw unit quaternion (w >= 0) of a rotation or pose matrix."""
     m = np.asarray(matrix, dtype=float)[:3, :3]

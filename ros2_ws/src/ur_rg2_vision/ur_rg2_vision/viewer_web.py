@@ -258,7 +258,12 @@ def create_app(hub: FrameHub) -> web.Application:
 
 
 class ViewerServer:
-    """Runs :func:`create_app` on its own thread and event loop, so ROS callbacks never wait."""
+    """Runs :func:`create_app` on its own thread and event loop, so ROS callbacks never wait.
+
+    A page of another app (the 3D view's) subclasses it with its own ``create_app``.
+    """
+
+    create_app = staticmethod(create_app)
 
     def __init__(self, hub: FrameHub, address: str = '127.0.0.1', port: int = 8080) -> None:
         self.hub = hub
@@ -290,7 +295,7 @@ class ViewerServer:
         # handler_cancellation: a stream whose client disconnects is cancelled at once,
         # even while it waits for the next frame. access_log off: one line per request and
         # per /state poll would flood the terminal.
-        self._runner = web.AppRunner(create_app(self.hub), handler_cancellation=True,
+        self._runner = web.AppRunner(self.create_app(self.hub), handler_cancellation=True,
                                      access_log=None, shutdown_timeout=2.0)
         await self._runner.setup()
         await web.TCPSite(self._runner, self.address, self.port).start()

@@ -1,6 +1,7 @@
 """The 3D view: its HTTP side, the node with bad input, and the page in headless Chromium."""
 
 import json
+import os
 import urllib.error
 import urllib.request
 
@@ -16,6 +17,7 @@ from test_viewer_browser import browser  # noqa: F401 - the headless Chromium fi
 from ur_rg2_common.contract import LATCHED_QOS
 from ur_rg2_tools.view3d_node import View3dNode
 from ur_rg2_tools.view3d_web import Scene, View3dServer, depth_cloud, served_description
+from ur_rg2_vision.vision_node import VisionNode
 
 URDF = """<robot name="r">
   <link name="a"><visual><geometry><mesh filename="file://{mesh}"/></geometry></visual>
@@ -114,7 +116,13 @@ def canvas(driver) -> np.ndarray:
 
 
 def test_page_draws_the_robot_and_follows_the_arm(ros_graph, browser):  # noqa: F811
-    start_sim(ros_graph, camera_width=320, camera_height=240)
+    # VIEW3D_SCREENSHOT=docs/view3d.png saves the picture of docs/recording-and-3d.md, at the
+    # default camera size; the test alone renders a smaller one to spare the two cores.
+    screenshot = os.environ.get('VIEW3D_SCREENSHOT')
+    size = (640, 480) if screenshot else (320, 240)
+    start_sim(ros_graph, camera_width=size[0], camera_height=size[1])
+    if screenshot:  # the detected ball beside the true one in the picture
+        ros_graph.add(VisionNode(context=ros_graph.context))
     view = ros_graph.add(View3dNode(context=ros_graph.context, parameter_overrides=[
         Parameter('port', value=0)]))
     jog = ros_graph.node('jogger').create_publisher(JointState, 'joint_jog', 10)
@@ -131,12 +139,19 @@ def test_page_draws_the_robot_and_follows_the_arm(ros_graph, browser):  # noqa: 
     assert before.std() > 10 and (np.abs(before.astype(int) - (38, 33, 29)).sum(2) > 30).mean() \
         > 0.02
     wait_for(jog.get_subscription_count, 10, 'the sim to subscribe to joint_jog')
-    jog.publish(JointState(name=['shoulder_pan_joint'], position=[0.8]))
+    jog.publish(JointState(name=['shoulder_pan_joint', 'shoulder_lift_joint', 'elbow_joint'],
+                           position=[0.8, -0.6, 1.2]))
 
     def arm_turned() -> bool:
         scene = json.loads(get(view.url + 'scene')[1])
-        return abs(scene['joints']['shoulder_pan_joint'] - 0.8) < 0.02
+        joints = scene['joints']
+        return all(abs(joints[name] - value) < 0.02 for name, value in (
+            ('shoulder_pan_joint', 0.8), ('shoulder_lift_joint', -0.6), ('elbow_joint', 1.2)))
 
-    wait_for(arm_turned, 60, 'shoulder_pan_joint at 0.8 rad in /scene')
+    wait_for(arm_turned, 60, 'the jogged joints in /scene')
     wait_for(lambda: np.abs(canvas(browser).astype(int) - before.astype(int)).mean() > 1.0,
              30, 'the drawn arm to move', interval=0.2)
+    if screenshot:
+        wait_for(lambda: browser.execute_script('return window.view3d.clouds') > 2, 30,
+                 'a point cloud of the moved arm')
+        browser.save_screenshot(screenshot)

@@ -40,6 +40,7 @@ def test_policy_run_drives_the_tcp_to_the_ball(ros_graph):
     start_sim(ros_graph, camera_rate=0.0, real_time_factor=2.0, ball_position=list(BALL),
               ball_radius=RADIUS)
     policy = ros_graph.add(PolicyNode(context=ros_graph.context))
+    ros_graph.executor.add_blocking_group(policy.blocking_group)  # as run_node does
     probe = ros_graph.node('probe')
     tree = TransformBuffer()
     probe.create_subscription(TFMessage, '/tf_static', tree.add_message, LATCHED_QOS)
@@ -109,6 +110,7 @@ def test_the_shipped_pick_policy_lifts_balls_the_camera_sees(ros_graph):
     ros_graph.add(VisionNode(context=ros_graph.context))
     policy = ros_graph.add(PolicyNode(context=ros_graph.context, parameter_overrides=[
         Parameter('policy_dir', value='pick')]))
+    ros_graph.executor.add_blocking_group(policy.blocking_group)
     probe = ros_graph.node('probe')
     tree = TransformBuffer()
     probe.create_subscription(TFMessage, '/tf_static', tree.add_message, LATCHED_QOS)
@@ -176,6 +178,7 @@ def test_pick_refuses_a_ball_unseen_or_out_of_reach_and_stops_when_it_is_lost(ro
               ball_radius=RADIUS)
     policy = ros_graph.add(PolicyNode(context=ros_graph.context, parameter_overrides=[
         Parameter('policy_dir', value='pick')]))
+    ros_graph.executor.add_blocking_group(policy.blocking_group)
     probe = ros_graph.node('probe')
     driving: list[bool] = []
     probe.create_subscription(Bool, 'policy/driving', lambda m: driving.append(m.data),

@@ -9,6 +9,7 @@ concatenated, the action bounds and how it was trained). ``train_policy`` writes
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
+import importlib.resources
 import json
 import os
 from pathlib import Path
@@ -19,6 +20,12 @@ import numpy as np
 
 ACTOR_FILE = 'actor.npz'
 META_FILE = 'policy.json'
+SHIPPED = ('reach', 'pick', 'pick_cloned')  # the policies that come with the package
+
+
+def shipped_policy(name: str = 'reach') -> str:
+    """Return the directory of a policy that comes with the package (``reach``, ``pick``)."""
+    return str(importlib.resources.files('ur_rg2_learning').joinpath('policies', name))
 
 
 class PolicyError(ValueError):

@@ -15,8 +15,7 @@ from typing import Any
 import gymnasium as gym
 
 import ur_rg2_learning  # noqa: F401 - registers the environments
-from ur_rg2_learning.actor import Actor, PolicyError
-from ur_rg2_learning.policy_node import SHIPPED, shipped_policy
+from ur_rg2_learning.actor import SHIPPED, Actor, PolicyError, shipped_policy
 
 # Training seeds its environment with small numbers: these episodes are held out.
 DEFAULT_SEED = 1_000_000

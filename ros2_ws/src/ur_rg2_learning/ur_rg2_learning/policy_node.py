@@ -25,7 +25,6 @@ the policy is driving the arm.
 
 from __future__ import annotations
 
-import importlib.resources
 import sys
 import threading
 import time
@@ -34,6 +33,7 @@ from control_msgs.action import FollowJointTrajectory, GripperCommand
 from geometry_msgs.msg import PointStamped
 import numpy as np
 from rclpy.action import ActionClient
+from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import JointState
@@ -65,7 +65,7 @@ from ur_rg2_motion.messages import ball_in_base_link, trajectory_goal
 from ur_rg2_motion.planning import plan_joint_move, plan_pick
 
 from ur_rg2_learning import EPISODE_STEPS, PICK_ID, REACH_ID
-from ur_rg2_learning.actor import Actor, PolicyError
+from ur_rg2_learning.actor import SHIPPED, Actor, PolicyError, shipped_policy
 from ur_rg2_learning.envs import (
     BALL_RADIUS,
     CONTROL_RATE,
@@ -89,27 +89,24 @@ _START_SPEED_SCALE = 0.4  # share of the joints' velocity limits for the move to
 _START_TIMEOUT = 30.0  # s for the start move beyond its duration
 _STEP_TIMEOUT = 10.0  # s for one step's goal to be answered and done, beyond its duration
 _LOST_STEPS = 30  # Pick steps (3 s of simulation time) a ball not held may go unseen
+# policy/run waits this long (s) for the latched transforms that place the ball and the floor
+# in base_link: a node started with the graph may be asked before /tf_static reached it.
+_TREE_WAIT = 5.0
 
 # A closed RG2 holds the ball when its fingers stopped this near the ball's diameter (the
 # motion node's grasp check) with the ball this near the TCP.
 _GRASP_TOLERANCE = 0.02  # m of opening
 _HELD_DISTANCE = 0.03  # m, ball centre to TCP
-SHIPPED = ('reach', 'pick')
 
 _PARAMETERS = (
     ParameterSpec('policy_dir', 'reach', 'The policy to run: a directory written by '
-                  "train_policy --out, or a policy shipped with the package: 'reach' or "
-                  "'pick' (empty: 'reach')", read_only=True),
+                  "train_policy --out, or a policy shipped with the package: 'reach', "
+                  "'pick' or 'pick_cloned' (empty: 'reach')", read_only=True),
     ParameterSpec('ball_radius', BALL_RADIUS, "The ball's radius, m: Reach's goal is its top, "
                   "Pick's success its bottom 10 cm above the floor", bounds=(0.005, 0.2)),
     ParameterSpec('ball_timeout', 1.0, 'policy/run needs a ball/position received at most '
                   'this long ago, s', bounds=(0.05, 60.0)),
 )
-
-
-def shipped_policy(name: str = 'reach') -> str:
-    """Return the directory of a policy that comes with the package (``reach``, ``pick``)."""
-    return str(importlib.resources.files('ur_rg2_learning').joinpath('policies', name))
 
 
 class PolicyNode(Node):
@@ -127,6 +124,7 @@ class PolicyNode(Node):
         self._picks = self.actor.env_id == PICK_ID
         self._lock = threading.Lock()
         self._tf = TransformBuffer()
+        self._tree_changed = threading.Condition()
         self._arm = None
         self._robot: str | None = None
         self._velocity_limits: np.ndarray | None = None
@@ -136,8 +134,8 @@ class PolicyNode(Node):
         self._episode: dict | None = None  # the running episode's state
 
         self.create_subscription(String, 'robot_description', self._on_description, LATCHED_QOS)
-        self.create_subscription(TFMessage, '/tf_static', self._tf.add_message, LATCHED_QOS)
-        self.create_subscription(TFMessage, '/tf', self._tf.add_message, TF_QOS)
+        self.create_subscription(TFMessage, '/tf_static', self._on_tf, LATCHED_QOS)
+        self.create_subscription(TFMessage, '/tf', self._on_tf, TF_QOS)
         self.create_subscription(JointState, 'joint_states', self._on_joint_states,
                                  qos_profile_sensor_data)
         self.create_subscription(PointStamped, 'ball/position', self._on_ball, 10)
@@ -145,12 +143,38 @@ class PolicyNode(Node):
         self._gripper = ActionClient(self, GripperCommand, GRIPPER_ACTION)
         self._driving = self.create_publisher(Bool, 'policy/driving', LATCHED_QOS)
         self._driving.publish(Bool(data=False))
-        self.create_service(Trigger, 'policy/run', self._on_run)
+        # policy/run may wait for the tree (bounded): on a worker thread (run_node's
+        # BlockingGroupExecutor), so that the transforms it waits for keep arriving.
+        self.blocking_group = ReentrantCallbackGroup()
+        self.create_service(Trigger, 'policy/run', self._on_run,
+                            callback_group=self.blocking_group)
         self.create_timer(1.0, self._watch)
         self.get_logger().info(f'{self.actor.env_id} policy from {directory}; policy/run '
                                'starts an episode')
 
     # -- state from the graph -------------------------------------------------------------------
+
+    def _on_tf(self, message: TFMessage) -> None:
+        self._tf.add_message(message)
+        with self._tree_changed:
+            self._tree_changed.notify_all()
+
+    def _wait_for_tree(self) -> None:
+        """Wait up to _TREE_WAIT s for the tree to place the ball's frame and the floor."""
+        with self._lock:
+            ball = self._ball
+        frames = {WORLD_FRAME} | ({ball[1].header.frame_id} if ball is not None else set())
+
+        def connected() -> bool:
+            try:
+                for frame in frames:
+                    self._tf.lookup(BASE_LINK, frame)
+            except FrameLookupError:
+                return False
+            return True
+
+        with self._tree_changed:
+            self._tree_changed.wait_for(connected, _TREE_WAIT)
 
     def _on_description(self, message: String) -> None:
         try:
@@ -215,6 +239,7 @@ class PolicyNode(Node):
             for client, name in clients[:2 if self._picks else 1]:
                 if not client.server_is_ready():
                     raise ValueError(f'{name} is not available (is the sim running?)')
+            self._wait_for_tree()
             centre = self._ball_centre()
             arm = self._kinematics()
             start = np.array(START_TCP)

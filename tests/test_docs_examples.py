@@ -56,7 +56,7 @@ READY = ((_GRAPH, r'ur_rg2_sim\]: simulating'),
          (_SIM, r'ur_rg2_sim\]: simulating'),
          (re.compile(r'^ros2 topic echo'), r'^---$'),
          (re.compile(r'^ros2 topic hz'), r'average rate'),
-         (re.compile(r'^ros2 run ur_rg2_teleop keys'), r'joint mode'),
+         (re.compile(r'^ros2 run ur_rg2_teleop keys'), r'p, Ctrl-C +quit'),
          (re.compile(r'^(ros2 run ur_rg2_learning )?policy\b'), r'policy/run'))
 _GRAPH_READY = (r'ur_rg2_sim\]: simulating', r'ur_rg2_motion\]: ready',
                 r'ur_rg2_vision\]: looking for the ball', r'ur_rg2_viewer\]: live view')
@@ -198,9 +198,9 @@ def shape(example: str) -> str:
 
 
 def pick_example(page: str) -> str:
-    """Return the pick outcome the page shows: ``done: picked the ball at (...) ... mm)``."""
+    """Return the pick outcome the page shows keys print: ``picked the ball at (...) ... mm)``."""
     text = ' '.join((ROOT / page).read_text().split())
-    return re.search(r'`/pick_ball: (done: picked the ball at .*? mm\))`', text).group(1)
+    return re.search(r'`/pick_ball: done: (picked the ball at .*? mm\))`', text).group(1)
 
 
 # What a command or block prints, where the page shows it: the block's (or command's) text,

@@ -5,6 +5,7 @@ test's private domain; a subscriber beside the recorder counts what was publishe
 """
 
 from collections import defaultdict
+import re
 import struct
 
 from conftest import RosGraph, start_sim, wait_for
@@ -163,3 +164,34 @@ def test_a_killed_recorder_leaves_its_chunks_readable(ros_graph, tmp_path):
     recorded = read_back(fixed)['/camera/depth/image_raw']
     assert len(recorded) >= 4
     assert all(decoded.encoding == '32FC1' for _, _, decoded in recorded)
+
+
+def test_bad_input_is_one_clear_error_and_nothing_lost(ros_graph, tmp_path):
+    # A topic nobody publishes: exit 1 naming it; what was recorded is a complete file.
+    ros_graph.node('talker').create_publisher(JointState, 'joint_states', 10)
+    path = tmp_path / 'partial.mcap'
+    recorder = Launched(['ros2', 'run', 'ur_rg2_tools', 'record', '--wait', '5', '-o',
+                         str(path), 'joint_states', 'no_such_topic'], ros_graph.env,
+                        tmp_path / 'record.log')
+    try:
+        assert recorder.wait(60) == 1
+    finally:
+        recorder.kill()
+    # (On a loaded machine /joint_states may not be discovered within --wait either.)
+    assert re.search(r'unknown topic (/joint_states, )?/no_such_topic: no publisher',
+                     recorder.output), recorder.output
+    assert 'Traceback' not in recorder.output and f'wrote {path}' in recorder.output
+    assert read_back(path) == {}  # complete, readable, and empty: nothing was published
+    # An existing file is never overwritten.
+    again = Launched(['ros2', 'run', 'ur_rg2_tools', 'record', '-o', str(path), '--all'],
+                     ros_graph.env, tmp_path / 'again.log')
+    assert again.wait(60) == 1 and 'File exists' in again.output
+    assert 'Traceback' not in again.output
+    # replay: a missing file and a file that is no recording.
+    (tmp_path / 'text.mcap').write_text('hello')
+    for name, reason in (('missing.mcap', 'No such file'),
+                         ('text.mcap', 'not a complete MCAP file')):
+        player = Launched(['ros2', 'run', 'ur_rg2_tools', 'replay', str(tmp_path / name)],
+                          ros_graph.env, tmp_path / f'{name}.log')
+        assert player.wait(60) == 1
+        assert reason in player.output and 'Traceback' not in player.output

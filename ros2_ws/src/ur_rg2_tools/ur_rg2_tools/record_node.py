@@ -87,6 +87,7 @@ class RecorderNode(Node):
         self._queue: queue.SimpleQueue = queue.SimpleQueue()
         self._recorded: dict[str, Any] = {}
         self._failure: str | None = None
+        self._write_failed = False  # the file is broken: nothing more goes to it
         self._lost = 0
         self._started = time.monotonic()
         self._progress_at = (self._started, 0)
@@ -154,7 +155,7 @@ class RecorderNode(Node):
     def _write_loop(self) -> None:
         channels: dict[int, int] = {}  # key from _subscribe: MCAP channel id
         while (item := self._queue.get()) is not None:
-            if self._failure is not None:
+            if self._write_failed:
                 self._lost += item[0] == 'message'
                 continue
             kind, channel, *rest = item
@@ -166,6 +167,7 @@ class RecorderNode(Node):
                     self._bag.write(channels[channel], data, received, sent or received,
                                     sequence)
             except Exception as error:  # noqa: BLE001 - any failure ends the recording
+                self._write_failed = True
                 self._bag.abandon()
                 self._failure = (
                     f'cannot write {self.path}: '
@@ -201,7 +203,7 @@ class RecorderNode(Node):
         self._writer.join()
         if self._tty:
             sys.stderr.write('\n')
-        if self._failure is None:
+        if not self._write_failed:
             try:
                 self._bag.finish()
                 # Not the node's logger: after a Ctrl-C its /rosout publisher is gone.
@@ -210,7 +212,7 @@ class RecorderNode(Node):
                     f'{self._bag.data_bytes / 1e6:.1f} MB of messages in '
                     f'{os.path.getsize(self.path) / 1e6:.1f} MB, '
                     f'{time.monotonic() - self._started:.1f} s')
-            except Exception as error:  # noqa: BLE001 - any failure ends the recording
+            except OSError as error:
                 self._bag.abandon()
                 get_logger(f'{NODE_NAME}.file').error(
                     f'cannot finish {self.path}: {error.strerror or error}; its complete '

@@ -1,4 +1,4 @@
-"""Closed-form forward and inverse kinematics of the UR5 / UR3 with the RG2. Plain Python.
+"""Closed-form forward and inverse kinematics of a UR arm (UR5, UR3, UR5e, UR3e). Plain Python.
 
 The arm is described by Universal Robots' published DH parameters. The DH base frame is the
 UR controller's ``base`` frame (ROS's ``base``, 180 degrees about z from ``base_link``) and the
@@ -10,10 +10,17 @@ planar shoulder-elbow-wrist 1 triangle. Two choices each for shoulder, wrist and
 to 8 solutions. Forward kinematics is vectorised with numpy (many joint vectors, or every
 frame of the chain, at once); the inverse is scalar, which for one pose is faster.
 
-:class:`ArmKinematics` adds what a controller needs on top: the fixed ``base_link``->``base``
-and ``tool0``->``rg2_tcp`` transforms (read from the robot description), the joint limits,
-the floor and the pedestal; :meth:`ArmKinematics.solve` picks the solution nearest the current
-joints that respects all of them, or raises :class:`KinematicsError` with the reason.
+:class:`ArmKinematics` adds what a controller needs on top: the ``base_link``->DH base and
+``tool0``->TCP transforms (read from the robot description), the joint limits, the floor and
+the pedestal; :meth:`ArmKinematics.solve` picks the solution nearest the current joints that
+respects all of them, or raises :class:`KinematicsError` with the reason.
+
+The robot description may be the sim's (``base_link`` -> ``shoulder_link``, ``rg2_tcp``) or
+Universal Robots' own (ur_description's ``ur_macro.xacro``: ``base_link`` ->
+``base_link_inertia`` -> ``shoulder_link`` ... ``wrist_3_link`` -> ``flange`` -> ``tool0``):
+the arm model is the one whose DH forward kinematics reproduces the description's own chain
+from ``base_link`` to ``tool0`` (joint origins and axes) at a set of joint vectors, within
+:data:`CHAIN_TOLERANCE`. Without an ``rg2_tcp`` frame the TCP is an offset from ``tool0``.
 """
 
 from collections.abc import Sequence
@@ -28,7 +35,6 @@ BASE_LINK = 'base_link'
 # Defaults of the checks against the sim's floor and pedestal (the motion node's parameters).
 FLOOR_CLEARANCE = 0.005  # m that the TCP, finger tips, wrist and elbow keep above the floor
 PEDESTAL_HALF_WIDTH = 0.11  # m, half the width of the column under base_link
-DH_BASE = 'base'
 FLANGE = 'tool0'
 TCP = 'rg2_tcp'
 
@@ -61,11 +67,23 @@ class DhParameters:
         return np.array([self.d1, 0.0, 0.0, self.d4, self.d5, self.d6])
 
 
-# From Universal Robots' "DH parameters for calculations of kinematics and dynamics".
+# From Universal Robots' "DH parameters for calculations of kinematics and dynamics" (the same
+# values as ur_description's config/<model>/default_kinematics.yaml).
 UR_DH = {
     'ur5': DhParameters(0.089159, -0.425, -0.39225, 0.10915, 0.09465, 0.0823),
     'ur3': DhParameters(0.1519, -0.24365, -0.21325, 0.11235, 0.08535, 0.0819),
+    'ur5e': DhParameters(0.1625, -0.425, -0.3922, 0.1333, 0.0997, 0.0996),
+    'ur3e': DhParameters(0.15185, -0.24355, -0.2132, 0.13105, 0.08535, 0.0921),
 }
+# How far (m) the DH model may put tool0 from where the description's chain has it.
+CHAIN_TOLERANCE = 1e-3
+# Joint vectors the DH model is checked against the chain at (rad): zero and a spread.
+_CHAIN_SAMPLES = np.array([
+    [0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+    [0.5, -1.2, 1.4, -0.9, 1.1, 0.3],
+    [-2.0, -0.4, -1.9, 2.2, -0.7, 1.5],
+    [1.3, -2.4, 0.8, 0.4, 2.6, -2.2],
+])
 _ALPHA = np.array([math.pi / 2, 0.0, 0.0, math.pi / 2, -math.pi / 2, 0.0])
 _COS_ALPHA = np.round(np.cos(_ALPHA))  # exactly 0 and +-1, as the DH table means
 _SIN_ALPHA = np.round(np.sin(_ALPHA))
@@ -205,31 +223,55 @@ class ArmKinematics:
         self._base_offset = self.base_in_base_link[:3, 3].tolist()
 
     @classmethod
-    def from_urdf(cls, urdf: str, model: str | None = None, **checks) -> 'ArmKinematics':
-        """Build from robot description text; ``model`` (ur5, ur3) is told by its shoulder.
+    def from_urdf(cls, urdf: str, model: str | None = None,
+                  tcp_offset: Sequence[float] | None = None, **checks) -> 'ArmKinematics':
+        """Build from robot description text.
 
-        ``checks`` are the floor and obstacle fields (``floor_z``, ``clearance``,
-        ``keep_out``).
+        ``model`` (a key of :data:`UR_DH`): None picks the one that fits the description's
+        chain. The TCP is the ``rg2_tcp`` frame, or else ``tcp_offset`` (x, y, z in m along
+        ``tool0``'s axes); with neither, KinematicsError says so. ``checks`` are the floor and
+        obstacle fields (``floor_z``, ``clearance``, ``keep_out``).
         """
-        chain = urdf_chain(urdf)
-        if model is None:
-            shoulder = chain.get(('base_link', 'shoulder_link'))
-            if shoulder is None:
-                raise KinematicsError('invalid', 'the robot description has no UR shoulder')
-            model = min(UR_DH, key=lambda m: abs(UR_DH[m].d1 - shoulder[2, 3]))
-        if model not in UR_DH:
-            raise KinematicsError('invalid', f'no DH parameters for robot model {model!r}')
+        joints = urdf_joints(urdf)
+        chain = {(parent, child): origin for child, (_, _, parent, origin, _) in joints.items()}
+        path = _arm_path(joints)
         limits = urdf_joint_limits(urdf)
         missing = [name for name in ARM_JOINTS if name not in limits]
         if missing:
-            raise KinematicsError('invalid', f"the robot description lacks {', '.join(missing)}")
-        tcp = fixed_transform(chain, FLANGE, TCP)
+            raise KinematicsError('invalid', f"the robot description has no limits for "
+                                  f"{', '.join(missing)}")
+        candidates = UR_DH if model is None else {model: UR_DH.get(model)}
+        if None in candidates.values():
+            raise KinematicsError('invalid', f'no DH parameters for robot model {model!r}')
+        # DH base -> flange against base_link -> tool0 along the description's own chain.
+        described = np.array([_chain_pose(path, q) for q in _CHAIN_SAMPLES])
+        fits = {}
+        for name, dh in candidates.items():
+            base = described[0] @ np.linalg.inv(forward(dh, _CHAIN_SAMPLES[0]))
+            error = np.abs(base @ forward(dh, _CHAIN_SAMPLES) - described)[:, :3, 3].max()
+            fits[name] = (float(error), base)
+        model = min(fits, key=lambda name: fits[name][0])
+        error, base = fits[model]
+        if error > CHAIN_TOLERANCE:
+            raise KinematicsError(
+                'invalid', f'the robot description\'s arm is none of {", ".join(candidates)}: '
+                f'the nearest, {model}, puts {FLANGE} {1000 * error:.1f} mm from where its chain '
+                'has it')
+        if TCP in joints:
+            tcp = fixed_transform(chain, FLANGE, TCP)
+        elif tcp_offset is not None:
+            tcp = np.eye(4)
+            tcp[:3, 3] = _finite_offset(tcp_offset)
+        else:
+            raise KinematicsError(
+                'invalid', f"the robot description has no {TCP} frame (the RG2's grasp point "
+                f'below {FLANGE}) and no TCP offset from {FLANGE} is set')
         # The fingers reach past the TCP to the tips of their pads.
         tip = max((fixed_transform(chain, FLANGE, child)[2, 3] for _, child in chain
                    if child.endswith('_finger')), default=tcp[2, 3]) + _finger_half(urdf)
         return cls(
             dh=UR_DH[model],
-            base_in_base_link=fixed_transform(chain, BASE_LINK, DH_BASE),
+            base_in_base_link=np.round(base, 12),
             tcp_in_flange=tcp,
             lower=np.array([limits[name][0] for name in ARM_JOINTS]),
             upper=np.array([limits[name][1] for name in ARM_JOINTS]),
@@ -239,7 +281,7 @@ class ArmKinematics:
 
     @property
     def model(self) -> str:
-        """The arm model (ur5, ur3) of the DH parameters."""
+        """The arm model (a key of UR_DH) of the DH parameters."""
         return next(name for name, dh in UR_DH.items() if dh == self.dh)
 
     def tcp_pose(self, q: Sequence[float] | np.ndarray) -> np.ndarray:
@@ -373,21 +415,82 @@ def _where(target: np.ndarray) -> str:
 # ur_rg2_sim.frames parses the whole tree for the sim, but imports pybullet; this module needs
 # only the fixed joints and the arm's limits, without it.
 
-def urdf_chain(urdf: str) -> dict[tuple[str, str], np.ndarray]:
-    """Return each joint's origin (parent -> child at zero motion) by (parent, child)."""
+def urdf_joints(urdf: str) -> dict[str, tuple]:
+    """Return each joint by its child link: (name, type, parent, origin at zero, axis)."""
     try:
         root = ET.fromstring(urdf)
     except ET.ParseError as error:
         raise KinematicsError(
             'invalid', f'the robot description does not parse: {error}') from None
-    chain = {}
+    joints = {}
     for joint in root.iter('joint'):
         origin = joint.find('origin')
-        xyz = _floats(origin, 'xyz')
         roll, pitch, yaw = _floats(origin, 'rpy')
-        chain[(joint.find('parent').get('link'), joint.find('child').get('link'))] = (
-            _rpy_matrix(xyz, roll, pitch, yaw))
-    return chain
+        axis = joint.find('axis')
+        joints[joint.find('child').get('link')] = (
+            joint.get('name'), joint.get('type'), joint.find('parent').get('link'),
+            _rpy_matrix(_floats(origin, 'xyz'), roll, pitch, yaw),
+            np.array(_floats(axis, 'xyz') if axis is not None else (1.0, 0.0, 0.0)))
+    return joints
+
+
+def urdf_chain(urdf: str) -> dict[tuple[str, str], np.ndarray]:
+    """Return each joint's origin (parent -> child at zero motion) by (parent, child)."""
+    return {(parent, child): origin
+            for child, (_, _, parent, origin, _) in urdf_joints(urdf).items()}
+
+
+def _arm_path(joints: dict[str, tuple]) -> list[tuple]:
+    """Return the joints from base_link to tool0, checking that the six arm joints are on it."""
+    missing = [frame for frame in (BASE_LINK, FLANGE)
+               if frame not in joints and not any(j[2] == frame for j in joints.values())]
+    if missing:
+        raise KinematicsError('invalid', f"the robot description has no {' or '.join(missing)} "
+                              'frame')
+    path, link = [], FLANGE
+    while link != BASE_LINK:
+        if link not in joints:
+            raise KinematicsError('invalid', f'the robot description has no chain from '
+                                  f'{BASE_LINK} to {FLANGE} (it stops at {link})')
+        path.append(joints[link])
+        link = joints[link][2]
+    path.reverse()
+    names = [joint[0] for joint in path if joint[1] != 'fixed']
+    absent = [name for name in ARM_JOINTS if name not in names]
+    if absent or names != list(ARM_JOINTS):
+        raise KinematicsError(
+            'invalid', f"the robot description's chain from {BASE_LINK} to {FLANGE} "
+            + (f"lacks {', '.join(absent)}" if absent else f"moves {', '.join(names)}, not the "
+               'six UR arm joints in order'))
+    return path
+
+
+def _chain_pose(path: list[tuple], q: Sequence[float]) -> np.ndarray:
+    """Return base_link -> tool0 along the description's joints at arm joints ``q``."""
+    pose = np.eye(4)
+    angles = iter(q)
+    for _, kind, _, origin, axis in path:
+        pose = pose @ origin
+        if kind != 'fixed':
+            pose = pose @ _axis_rotation(axis, next(angles))
+    return pose
+
+
+def _axis_rotation(axis: np.ndarray, angle: float) -> np.ndarray:
+    x, y, z = axis / np.linalg.norm(axis)
+    c, s, t = math.cos(angle), math.sin(angle), 1 - math.cos(angle)
+    m = np.eye(4)
+    m[:3, :3] = [[t * x * x + c, t * x * y - s * z, t * x * z + s * y],
+                 [t * x * y + s * z, t * y * y + c, t * y * z - s * x],
+                 [t * x * z - s * y, t * y * z + s * x, t * z * z + c]]
+    return m
+
+
+def _finite_offset(offset: Sequence[float]) -> tuple[float, float, float]:
+    values = tuple(float(v) for v in offset)
+    if len(values) != 3 or not all(map(math.isfinite, values)):
+        raise KinematicsError('invalid', f'the TCP offset {list(values)} is not [x, y, z] in m')
+    return values
 
 
 def fixed_transform(chain: dict[tuple[str, str], np.ndarray], ancestor: str,
@@ -465,15 +568,17 @@ def _rpy_matrix(xyz: Sequence[float], roll: float, pitch: float, yaw: float) -> 
 
 def arm_on_pedestal(urdf: str, pedestal_height: float,
                     pedestal_half_width: float = PEDESTAL_HALF_WIDTH,
-                    clearance: float = FLOOR_CLEARANCE) -> ArmKinematics:
+                    clearance: float = FLOOR_CLEARANCE,
+                    tcp_offset: Sequence[float] | None = None) -> ArmKinematics:
     """Return the arm of robot description text ``urdf`` with the sim's floor and pedestal.
 
     ``pedestal_height``: base_link above the floor, m (inf: no floor known); the pedestal is
-    a square column of ``pedestal_half_width`` under base_link (0: none).
+    a square column of ``pedestal_half_width`` under base_link (0: none). ``tcp_offset``: see
+    :meth:`ArmKinematics.from_urdf`.
     """
     keep_out = [Box((-pedestal_half_width, -pedestal_half_width, -pedestal_height - 1.0),
                     (pedestal_half_width, pedestal_half_width, 0.0))] if (
         pedestal_half_width > 0 and math.isfinite(pedestal_height) and pedestal_height > 0
     ) else []
-    return ArmKinematics.from_urdf(urdf, floor_z=-pedestal_height, clearance=clearance,
-                                   keep_out=keep_out)
+    return ArmKinematics.from_urdf(urdf, tcp_offset=tcp_offset, floor_z=-pedestal_height,
+                                   clearance=clearance, keep_out=keep_out)

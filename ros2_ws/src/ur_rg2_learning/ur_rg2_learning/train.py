@@ -1,17 +1,27 @@
-"""``train_policy``: train DDPG (or TD3; Stable-Baselines3, with HER) on one environment.
+"""``train_policy``: train TD3 or DDPG (Stable-Baselines3, with HER) on one environment.
 
-For Pick, ``--demos N`` puts N scripted pick episodes into the replay buffer and ``--bc W``
-adds behaviour cloning on them to every actor update (Nair et al. 2018): the squared
-distance to the demonstrated actions where the critic rates them above the actor's own (the
-Q-filter), weighted W times the batch's mean |Q| (as TD3+BC); ``--pretrain N`` clones them N
-updates before the first environment step.
+For Pick, ``--demos N`` puts N scripted pick episodes into the replay buffer (data only: no
+cloning before the first update, so the actor that starts reinforcement learning is the
+untrained network), ``--bc W`` adds a Q-filtered behaviour-cloning term on them to every
+actor update (Nair et al. 2018: the squared distance to the demonstrated actions where the
+critic rates them above the actor's own, weighted W times the batch's mean |Q| as TD3+BC),
+``--critic-warmup N`` trains the critic N updates on the demonstrations before the actor
+moves, ``--grasped-share S`` starts that share of the training episodes with the ball already
+between the fingers (Fetch's trick; evaluation episodes never). Inputs are standardised with
+the demonstrations' (or a few random episodes') mean and deviation, fixed for the run.
 
-Shows a progress bar (rate, ETA) and writes to ``--out``: the actor for the run path
-(``actor.npz`` + ``policy.json``, see :mod:`ur_rg2_learning.actor`), the whole
-Stable-Baselines3 model (``model.zip``, to train on) and ``learning_curve.png``: the
-deterministic policy's success rate on ``--eval-episodes`` fresh episodes every
-``--eval-every`` steps; ``best/`` the actor of the curve's best point. Needs the learning
-set-up (``scripts/bootstrap requirements-learning.txt``).
+``--seed N`` trains one seed in this process; ``--seeds A B ...`` trains each as a Ray task
+(a local Ray with ``--num-cpus`` by default, an existing cluster with ``--address``) and writes
+one table and one picture of the seeds' curves. ``--minutes`` bounds each seed's wall time:
+the run ends there, and the policy it ends with is the one written.
+
+Writes to ``--out`` (per seed ``seed_N/`` with ``--seeds``): the final actor for the run path
+(``actor.npz`` + ``policy.json``, see :mod:`ur_rg2_learning.actor`), ``before_rl/`` the actor
+before the first update, ``best/`` the actor of the curve's best point, and
+``learning_curve.png``: the deterministic policy's success on ``--eval-episodes`` fresh
+episodes every ``--eval-every`` steps. ``--final-episodes`` held-out episodes (evaluate_policy's)
+score the final and the before-RL actor. Needs the learning set-up
+(``scripts/bootstrap requirements-learning.txt``).
 """
 
 from __future__ import annotations
@@ -20,26 +30,25 @@ import argparse
 from pathlib import Path
 import sys
 import time
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from ur_rg2_vision.dataset import Progress
 
 from ur_rg2_learning import EPISODE_STEPS, PICK_ID, REACH_ID
 from ur_rg2_learning.actor import Actor, write_atomically
-from ur_rg2_learning.evaluate import success_rate
+from ur_rg2_learning.evaluate import DEFAULT_SEED, success_rate
 
 # Curve episodes are seeded apart from training (small seeds) and from evaluate_policy's.
 CURVE_SEED = 500_000
 DEMO_SEED = 700_000  # and the demonstrations' episodes, apart from both
 DEMO_HOLD_STEPS = 10  # steps of each demonstration after the ball is lifted
 ALGORITHMS = {'ddpg': 'DDPG', 'td3': 'TD3'}
-# Observations (m, m/s) times this into the networks (the shipped Reach policy: 1).
-INPUT_SCALE = {REACH_ID: 1.0, PICK_ID: 10.0}
-# DDPG + HER settings (Gymnasium-Robotics' Fetch tasks in the rl-baselines3-zoo, with a
-# wider network): HER relabels 4 of 5 sampled transitions with goals reached later.
+# HER settings from Gymnasium-Robotics' Fetch tasks in the rl-baselines3-zoo: HER relabels 4
+# of 5 sampled transitions with goals reached later.
 HYPERPARAMETERS = {
-    'learning_rate': 1e-3,
+    'learning_rate': 1e-3,  # the critic's
+    'actor_lr_share': 0.1,  # the actor learns this much slower than the critic
     'buffer_size': 1_000_000,
     'batch_size': 256,
     'gamma': 0.95,
@@ -49,193 +58,333 @@ HYPERPARAMETERS = {
     'action_noise': 0.2,  # standard deviation of the Gaussian exploration noise
     'her_goals': 4,
 }
+INPUT_STD_FLOOR = 0.05  # m, m/s: the least deviation an input is standardised with
+NORMALISE_EPISODES = 10  # random episodes that set the input scaling when there are no demos
+
+
+def parser() -> argparse.ArgumentParser:
+    """Return train_policy's argument parser."""
+    p = argparse.ArgumentParser(prog='train_policy', description=__doc__.split('\n')[0])
+    p.add_argument('--env', required=True, choices=[REACH_ID, PICK_ID])
+    p.add_argument('--algo', default='td3', choices=list(ALGORITHMS))
+    p.add_argument('--timesteps', type=int, required=True, help='environment steps (at most)')
+    seeds = p.add_mutually_exclusive_group()
+    seeds.add_argument('--seed', type=int, default=0, help='one seed, in this process (0)')
+    seeds.add_argument('--seeds', type=int, nargs='+',
+                       help='several seeds, each a Ray task (writes seed_N/ for each)')
+    p.add_argument('--out', required=True, help='directory to write the policy to')
+    p.add_argument('--minutes', type=float, default=0.0,
+                   help='wall time per seed at most (0: no bound); the run ends there')
+    p.add_argument('--eval-every', type=int, default=0,
+                   help='steps between learning-curve points (default: timesteps / 20)')
+    p.add_argument('--eval-episodes', type=int, default=20,
+                   help='episodes per learning-curve point (20)')
+    p.add_argument('--final-episodes', type=int, default=100,
+                   help='held-out episodes scoring the final and the before-RL actor (100)')
+    p.add_argument('--demos', type=int, default=0,
+                   help=f'{PICK_ID} only: scripted pick episodes put into the replay buffer')
+    p.add_argument('--bc', type=float, default=0.0,
+                   help='weight of the behaviour-cloning term in the actor updates (0: none; '
+                   'needs --demos)')
+    p.add_argument('--no-q-filter', dest='q_filter', action='store_false',
+                   help='clone every demonstrated step, not only those the critic rates above '
+                   'the actor')
+    p.add_argument('--critic-warmup', type=int, default=0,
+                   help='critic updates on the demonstrations before the first step (0)')
+    p.add_argument('--grasped-share', type=float, default=0.0,
+                   help=f'{PICK_ID} only: share of training episodes that start with the ball '
+                   'between the fingers (0)')
+    p.add_argument('--net', type=int, nargs='+', default=HYPERPARAMETERS['net_arch'],
+                   help='hidden layer sizes of actor and critic (%(default)s)')
+    p.add_argument('--actor-lr-share', type=float, default=HYPERPARAMETERS['actor_lr_share'],
+                   help="the actor's learning rate as a share of the critic's (%(default)s)")
+    p.add_argument('--num-cpus', type=int, default=None,
+                   help='with --seeds: CPUs of the local Ray (default: all)')
+    p.add_argument('--address', default=None,
+                   help='with --seeds: an existing Ray cluster (auto or HOST:PORT)')
+    return p
 
 
 def main(argv: list[str] | None = None) -> int:
     """Train, export, plot; exit code 0, 2 when the learning set-up is missing."""
-    parser = argparse.ArgumentParser(prog='train_policy', description=__doc__.split('\n')[0])
-    parser.add_argument('--env', required=True, choices=[REACH_ID, PICK_ID])
-    parser.add_argument('--algo', default='ddpg', choices=list(ALGORITHMS))
-    parser.add_argument('--timesteps', type=int, required=True, help='environment steps')
-    parser.add_argument('--seed', type=int, default=0)
-    parser.add_argument('--out', required=True, help='directory to write the policy to')
-    parser.add_argument('--eval-every', type=int, default=0,
-                        help='steps between learning-curve points (default: timesteps / 20)')
-    parser.add_argument('--eval-episodes', type=int, default=20,
-                        help='episodes per learning-curve point (20)')
-    parser.add_argument('--demos', type=int, default=0,
-                        help=f'{PICK_ID} only: scripted pick episodes put into the replay '
-                        'buffer before training (0)')
-    parser.add_argument('--bc', type=float, default=0.0,
-                        help='weight of the behaviour-cloning updates on the demonstrations '
-                        '(0: none; needs --demos)')
-    parser.add_argument('--no-q-filter', dest='q_filter', action='store_false',
-                        help='clone every demonstrated step, not only those the critic '
-                        'rates above the actor')
-    parser.add_argument('--pretrain', type=int, default=0,
-                        help='behaviour-cloning updates of the actor before the first step '
-                        '(0; needs --demos)')
-    args = parser.parse_args(argv)
-    if args.timesteps < 1 or args.eval_episodes < 1 or min(args.demos, args.bc,
-                                                           args.pretrain) < 0:
-        parser.error('--timesteps and --eval-episodes must be positive, --demos, --bc and '
-                     '--pretrain not negative')
-    if args.demos and args.env != PICK_ID:
-        parser.error(f'--demos is for {PICK_ID}')
-    if (args.bc or args.pretrain) and not args.demos:
-        parser.error('--bc and --pretrain clone the demonstrations: give --demos')
+    p = parser()
+    args = p.parse_args(argv)
+    if args.timesteps < 1 or args.eval_episodes < 1 or args.final_episodes < 0 or min(
+            args.demos, args.bc, args.critic_warmup, args.minutes) < 0:
+        p.error('--timesteps and --eval-episodes must be positive; --demos, --bc, '
+                '--critic-warmup, --minutes and --final-episodes not negative')
+    if (args.demos or args.grasped_share) and args.env != PICK_ID:
+        p.error(f'--demos and --grasped-share are for {PICK_ID}')
+    if (args.bc or args.critic_warmup) and not args.demos:
+        p.error('--bc and --critic-warmup train on the demonstrations: give --demos')
+    if not 0.0 <= args.grasped_share <= 1.0:
+        p.error('--grasped-share is a share: 0 to 1')
     try:
-        from stable_baselines3 import DDPG, TD3, HerReplayBuffer
-        from stable_baselines3.common.callbacks import BaseCallback
-        from stable_baselines3.common.noise import NormalActionNoise
-        import torch
+        import stable_baselines3  # noqa: F401
+        import torch  # noqa: F401
     except ImportError as error:
         print(f'train_policy needs the learning set-up ({error}): run '
               '`scripts/bootstrap requirements-learning.txt`', file=sys.stderr)
         return 2
-
+    config = {key: value for key, value in vars(args).items()
+              if key not in ('seeds', 'seed', 'num_cpus', 'address', 'out')}
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    every = args.eval_every or max(args.timesteps // 20, 1)
-    torch.manual_seed(args.seed)
-    # DDPG's networks are small: one thread computes them fastest. With one per core, torch's
+    if args.seeds is None:
+        result = train_seed(config, args.seed)
+        write_result(result, out)
+        print(summary(result, out))
+        return 0
+    from ur_rg2_learning.seeds import run_seeds
+
+    return run_seeds(config, args.seeds, out, args.num_cpus, args.address)
+
+
+def summary(result: dict[str, Any], out: Path) -> str:
+    """Return the line a finished seed prints."""
+    return (f"{result['env']} seed {result['seed']}: {result['steps']} steps in "
+            f"{result['seconds']:.0f} s; final success {result['final']:.2f}, before RL "
+            f"{result['before_rl']:.2f} over {result['final_episodes']} held-out episodes; "
+            f'wrote {out}')
+
+
+def train_seed(config: dict[str, Any], seed: int) -> dict[str, Any]:
+    """Train one seed; return its record and actors (plain data: Ray ships it back).
+
+    ``config`` holds train_policy's options (not --seed/--seeds/--out). The result has the
+    curve, the final, before-RL and best actors (layers and meta), their held-out scores.
+    """
+    from stable_baselines3 import DDPG, TD3, HerReplayBuffer
+    from stable_baselines3.common.callbacks import BaseCallback
+    from stable_baselines3.common.noise import NormalActionNoise
+    import torch
+
+    import ur_rg2_learning  # noqa: F401 - registers the environments (in a Ray worker too)
+
+    started = time.monotonic()
+    env_id = config['env']
+    timesteps = config['timesteps']
+    every = config['eval_every'] or max(timesteps // 20, 1)
+    deadline = started + 60.0 * config['minutes'] if config['minutes'] else float('inf')
+    torch.manual_seed(seed)
+    # The networks are small: one thread computes them fastest. With one per core, torch's
     # threads wait on each other whenever the machine is busy (the environment, other
     # processes): a 256x256 layer took 18 ms instead of 1.6 ms on the loaded 2-core machine.
     torch.set_num_threads(1)
-    env = gym.make(args.env)
+    make_kwargs = ({'grasped_share': config['grasped_share']} if env_id == PICK_ID else {})
+    env = gym.make(env_id, **make_kwargs)
+    demonstrations = scripted_demonstrations(env_id, config['demos'])
+    mean, std = input_scaling(env_id, demonstrations)
     size = env.action_space.shape[0]
     h = HYPERPARAMETERS
-    algorithm = with_cloning({'ddpg': DDPG, 'td3': TD3}[args.algo])
+    h = dict(h, net_arch=config['net'], actor_lr_share=config['actor_lr_share'])
+    algorithm = with_cloning({'ddpg': DDPG, 'td3': TD3}[config['algo']], h['actor_lr_share'])
     model = algorithm(
-        'MultiInputPolicy', env, seed=args.seed, learning_rate=h['learning_rate'],
-        buffer_size=min(h['buffer_size'], args.timesteps + args.demos * EPISODE_STEPS[args.env]),
-        batch_size=h['batch_size'],
-        gamma=h['gamma'], tau=h['tau'], learning_starts=min(h['learning_starts'],
-                                                            args.timesteps // 2),
+        'MultiInputPolicy', env, seed=seed, learning_rate=h['learning_rate'],
+        buffer_size=min(h['buffer_size'], timesteps + len(demonstrations.get('action', []))),
+        batch_size=h['batch_size'], gamma=h['gamma'], tau=h['tau'],
+        # HER samples whole episodes: the first must have ended before the first update.
+        learning_starts=min(h['learning_starts'], max(timesteps // 2, EPISODE_STEPS[env_id])),
         action_noise=NormalActionNoise(np.zeros(size), h['action_noise'] * np.ones(size)),
         replay_buffer_class=HerReplayBuffer,
         replay_buffer_kwargs={'n_sampled_goal': h['her_goals'],
                               'goal_selection_strategy': 'future'},
         policy_kwargs={'net_arch': h['net_arch'],
-                       'features_extractor_class': scaled_extractor(),
-                       'features_extractor_kwargs': {'scale': INPUT_SCALE[args.env]}},
+                       'features_extractor_class': standardising_extractor(),
+                       'features_extractor_kwargs': {'mean': mean, 'std': std}},
         verbose=0)
+    record = dict(config, seed=seed, observation_keys=list(env.observation_space.spaces),
+                  action_low=env.action_space.low.tolist(),
+                  action_high=env.action_space.high.tolist())
+    add_demonstrations(model.replay_buffer, demonstrations)
+    if config['bc']:
+        model.cloning = Cloning(model, demonstrations, config['bc'], config['q_filter'])
+    warm_up_critic(model, config['critic_warmup'])
     curve: list[tuple[int, float, float]] = []  # (steps, success rate, wall seconds)
-    started = time.monotonic()
-    demonstrations = add_demonstrations(model.replay_buffer, args.env, args.demos)
-    if args.bc or args.pretrain:
-        model.cloning = Cloning(model, demonstrations, args.bc, args.q_filter)
-        model.cloning.pretrain(args.pretrain, h['batch_size'])
-
-    # The data set command's bar (rate, ETA) on a terminal; a line per curve point otherwise.
-    progress = Progress(args.timesteps, every=every)
+    before_rl = export(model, record, 0, time.monotonic() - started, curve)
+    best: dict[str, Any] = {}
 
     def evaluate(steps: int) -> None:
-        actor = export(model, args, env, time.monotonic() - started, curve)
-        rate = success_rate(actor, args.eval_episodes, CURVE_SEED, args.env)
+        actor = export(model, record, steps, time.monotonic() - started, curve)
+        rate = success_rate(actor, config['eval_episodes'], CURVE_SEED, env_id)
         if not curve or rate >= max(point[1] for point in curve):
-            # DDPG's success can collapse and recover from one point to the next: the best
-            # point's actor is kept too (the latest of equals: it has learned the longest).
-            actor.meta['best_of_curve'] = {'steps': steps, 'success': rate}
-            actor.save(out / 'best')
+            # The best point's actor is kept too (the latest of equals: it has learned the
+            # longest); the run's result is the final actor, not this one.
+            best.update(actor=actor, steps=steps, success=rate)
         curve.append((steps, rate, time.monotonic() - started))
-        if progress.tty:
-            progress.stream.write('\n')
-        print(f'{args.env} {args.algo}: {steps:>8d}/{args.timesteps} steps  success {rate:4.2f}  '
-              f'{time.monotonic() - started:6.0f} s', flush=True)
+        print(f'{env_id} {config["algo"]} seed {seed}: {steps:>8d}/{timesteps} steps  '
+              f'success {rate:4.2f}  {time.monotonic() - started:6.0f} s', flush=True)
 
     class Steps(BaseCallback):
         def _on_step(self) -> bool:
-            progress.advance()
             if self.num_timesteps % every == 0:
                 evaluate(self.num_timesteps)
-            return True
+            return time.monotonic() < deadline
 
-    if args.pretrain:
-        evaluate(0)  # the cloned policy, before any reinforcement learning
-    try:
-        model.learn(args.timesteps, callback=Steps())
-    finally:
-        progress.close()
-    if not curve or curve[-1][0] != args.timesteps:
-        evaluate(args.timesteps)
+    evaluate(0)  # the actor before any reinforcement learning
+    model.learn(timesteps, callback=Steps())
+    steps = model.num_timesteps
+    if curve[-1][0] != steps:
+        evaluate(steps)
     seconds = time.monotonic() - started
-    export(model, args, env, seconds, curve).save(out)
-    model.save(out / 'model.zip')
-    method = f'{ALGORITHMS[args.algo]} + HER' + (
-        f' + {args.demos} scripted demos' if args.demos else '') + (
-        f' + BC {args.bc:g}' if args.bc else '') + (
-        f', {args.pretrain} BC updates first' if args.pretrain else '')
-    plot_curve(curve, f'{args.env}, {method}', out / 'learning_curve.png')
+    final = export(model, record, steps, seconds, curve)
     env.close()
-    print(f'{args.env}: trained {args.timesteps} steps in {seconds:.0f} s; success '
-          f'{curve[-1][1]:.2f} over {args.eval_episodes} episodes; wrote {out}')
-    return 0
+    episodes = config['final_episodes']
+    scores = {name: (success_rate(actor, episodes, DEFAULT_SEED) if episodes else float('nan'))
+              for name, actor in (('final', final), ('before_rl', before_rl))}
+    for actor in (final, before_rl, best['actor']):
+        actor.meta['held_out'] = {'episodes': episodes, 'seed': DEFAULT_SEED,
+                                  'final_success': scores['final'],
+                                  'before_rl_success': scores['before_rl']}
+    best['actor'].meta['best_of_curve'] = {'steps': best['steps'], 'success': best['success']}
+    return {
+        'env': env_id, 'seed': seed, 'method': method(config), 'steps': steps,
+        'seconds': seconds, 'curve': curve, 'final_episodes': episodes,
+        'final': scores['final'], 'before_rl': scores['before_rl'],
+        'best_success': best['success'], 'best_steps': best['steps'],
+        'actors': {'final': to_data(final), 'before_rl': to_data(before_rl),
+                   'best': to_data(best['actor'])},
+    }
 
 
-def add_demonstrations(buffer, env_id: str, episodes: int) -> dict[str, np.ndarray]:
-    """Put ``episodes`` of the scripted pick into the replay buffer, as if it had acted.
+def to_data(actor: Actor) -> dict[str, Any]:
+    """Return an actor as plain data (layers, meta)."""
+    return {'layers': actor.layers, 'meta': actor.meta}
 
+
+def write_result(result: dict[str, Any], out: Path) -> None:
+    """Write a seed's actors (final into ``out``, before_rl/, best/) and its curve picture."""
+    out.mkdir(parents=True, exist_ok=True)
+    actors = result['actors']
+    Actor(**actors['final']).save(out)
+    Actor(**actors['before_rl']).save(out / 'before_rl')
+    Actor(**actors['best']).save(out / 'best')
+    plot_curves({result['seed']: result['curve']}, f"{result['env']}, {result['method']}",
+                out / 'learning_curve.png')
+
+
+def method(config: dict[str, Any]) -> str:
+    """Return what trains the policy, in words."""
+    words = f"{ALGORITHMS[config['algo']]} + HER"
+    if config['demos']:
+        words += f" + {config['demos']} scripted demos in the buffer"
+    if config['bc']:
+        words += f" + {'Q-filtered ' if config['q_filter'] else ''}BC {config['bc']:g}"
+    if config['critic_warmup']:
+        words += f", critic warm-up {config['critic_warmup']}"
+    if config.get('grasped_share'):
+        words += f", {config['grasped_share']:g} of episodes start grasped"
+    return words
+
+
+def scripted_demonstrations(env_id: str, episodes: int) -> dict[str, np.ndarray]:
+    """Return ``episodes`` of the scripted pick, one row a step: each key, and the rest.
+
+    Keys: the observation's, ``action``, ``next_<key>``, ``reward``, ``done``, ``truncated``.
     Each episode ends DEMO_HOLD_STEPS steps after the ball is first lifted (cut there, as by
-    a time limit): the whole 100 steps would be mostly the ball held still, and a policy
-    cloned from them learns to stand still anywhere. Returns them as arrays: each observation
-    key's values and ``action``, one row a step.
+    a time limit): the whole 100 steps would be mostly the ball held still.
     """
     from ur_rg2_learning.scripted import pick_action
 
+    if not episodes:
+        return {}
     env = gym.make(env_id)
-    steps: dict[str, list[np.ndarray]] = {}
+    rows: dict[str, list[Any]] = {}
     try:
         for episode in range(episodes):
             observation, _ = env.reset(seed=DEMO_SEED + episode)
             done, held = False, 0
             while not done:
                 action = pick_action(observation)
-                for key, value in (*observation.items(), ('action', action)):
-                    steps.setdefault(key, []).append(value)
                 following, reward, terminated, truncated, info = env.step(action)
                 held += bool(info['is_success'])
                 truncated = truncated or held > DEMO_HOLD_STEPS
                 done = terminated or truncated
-                # Stable-Baselines3's flag for an episode cut by its time limit.
-                info = dict(info, **{'TimeLimit.truncated': truncated and not terminated})
-                buffer.add({key: value[None] for key, value in observation.items()},
-                           {key: value[None] for key, value in following.items()},
-                           action[None], np.array([reward]), np.array([done]), [info])
+                row = {**observation, 'action': action, 'reward': reward, 'done': done,
+                       'truncated': truncated and not terminated,
+                       **{f'next_{key}': value for key, value in following.items()}}
+                for key, value in row.items():
+                    rows.setdefault(key, []).append(value)
                 observation = following
     finally:
         env.close()
-    return {key: np.array(values) for key, values in steps.items()}
+    return {key: np.array(values) for key, values in rows.items()}
 
 
-def scaled_extractor() -> type:
-    """Return Stable-Baselines3's dict extractor with its output multiplied by ``scale``.
+def add_demonstrations(buffer, demonstrations: dict[str, np.ndarray]) -> None:
+    """Put the demonstrated steps into the (HER) replay buffer, as if the agent had acted."""
+    keys = ('achieved_goal', 'desired_goal', 'observation')
+    for i in range(len(demonstrations.get('action', []))):
+        d = demonstrations
+        buffer.add({key: d[key][i][None] for key in keys},
+                   {key: d[f'next_{key}'][i][None] for key in keys},
+                   d['action'][i][None], np.array([d['reward'][i]]), np.array([d['done'][i]]),
+                   # Stable-Baselines3's flag for an episode cut by its time limit.
+                   [{'TimeLimit.truncated': bool(d['truncated'][i])}])
 
-    Pick's policy tells a grasp from a miss by millimetres: inputs in decimetres rather than
-    metres let the network see them. The export folds the scale into the first layer.
+
+def input_scaling(env_id: str, demonstrations: dict[str, np.ndarray]) -> tuple[list, list]:
+    """Return the inputs' mean and deviation, in the actor's input order (sorted keys).
+
+    From the demonstrations, else from NORMALISE_EPISODES random episodes; fixed for the run
+    (the export folds them into the first layer). Deviations below INPUT_STD_FLOOR are taken
+    as it: with 1 cm, inputs the demonstrations hardly vary (the goal's height, the ball's
+    speed) came out at 100 and more wherever the policy strayed from them, and a policy that
+    matched the demonstrated actions within 0.02 lifted no ball; with 5 cm, 9 of 10.
     """
-    from stable_baselines3.common.torch_layers import CombinedExtractor
+    if not demonstrations:
+        env = gym.make(env_id)
+        rng = np.random.default_rng(0)
+        rows: dict[str, list] = {}
+        try:
+            for episode in range(NORMALISE_EPISODES):
+                observation, _ = env.reset(seed=DEMO_SEED + episode)
+                done = False
+                while not done:
+                    for key, value in observation.items():
+                        rows.setdefault(key, []).append(value)
+                    action = rng.uniform(-1, 1, env.action_space.shape)
+                    observation, _, terminated, truncated, _ = env.step(action)
+                    done = terminated or truncated
+        finally:
+            env.close()
+        demonstrations = {key: np.array(values) for key, values in rows.items()}
+    keys = sorted(('achieved_goal', 'desired_goal', 'observation'))
+    values = np.concatenate([demonstrations[key] for key in keys], axis=1)
+    return values.mean(axis=0).tolist(), np.maximum(values.std(axis=0), INPUT_STD_FLOOR).tolist()
 
-    class ScaledExtractor(CombinedExtractor):
-        def __init__(self, observation_space, scale: float = 1.0) -> None:
+
+def standardising_extractor() -> type:
+    """Return Stable-Baselines3's dict extractor with its output standardised (fixed)."""
+    from stable_baselines3.common.torch_layers import CombinedExtractor
+    import torch
+
+    class StandardisingExtractor(CombinedExtractor):
+        def __init__(self, observation_space, mean: list, std: list) -> None:
             super().__init__(observation_space)
-            self.scale = scale
+            self.register_buffer('mean', torch.tensor(mean, dtype=torch.float32))
+            self.register_buffer('std', torch.tensor(std, dtype=torch.float32))
 
         def forward(self, observations):
-            return super().forward(observations) * self.scale
+            return (super().forward(observations) - self.mean) / self.std
 
-    return ScaledExtractor
+    return StandardisingExtractor
 
 
-def with_cloning(algorithm: type) -> type:
-    """Return a subclass of a Stable-Baselines3 TD3-family class running ``model.cloning``.
+def with_cloning(algorithm: type, actor_lr_share: float) -> type:
+    """Return a subclass of a Stable-Baselines3 TD3-family class with cloning and a slow actor.
 
-    Its actor updates then minimise the algorithm's actor loss plus the cloning loss: the
-    cloning gradient is added to the actor's before each step of its optimiser.
+    Its actor updates minimise the algorithm's actor loss plus ``model.cloning``'s loss (the
+    cloning gradient is added to the actor's before each step of its optimiser); the actor's
+    learning rate is ``actor_lr_share`` of the critic's.
     """
 
     class WithCloning(algorithm):
         cloning: Cloning | None = None
+
+        def _update_learning_rate(self, optimizers) -> None:
+            super()._update_learning_rate(optimizers)
+            for group in self.actor.optimizer.param_groups:
+                group['lr'] = self.lr_schedule(self._current_progress_remaining) * actor_lr_share
 
         def train(self, gradient_steps: int, batch_size: int = 100) -> None:
             if self.cloning is None:
@@ -245,7 +394,7 @@ def with_cloning(algorithm: type) -> type:
             step = optimizer.step
 
             def step_with_cloning(*args, **kwargs):
-                self.cloning.backward(batch_size, critic=True)
+                self.cloning.backward(batch_size)
                 return step(*args, **kwargs)
 
             optimizer.step = step_with_cloning
@@ -259,6 +408,33 @@ def with_cloning(algorithm: type) -> type:
 
     WithCloning.__name__ = algorithm.__name__
     return WithCloning
+
+
+def warm_up_critic(model, updates: int) -> None:
+    """Train the critic ``updates`` times on the replay buffer (the demonstrations) alone.
+
+    The TD3-family critic update (clipped double Q where there are two critics, target
+    smoothing as configured), with the actor fixed, and the critic's target following.
+    """
+    from stable_baselines3.common.utils import polyak_update
+    import torch
+    from torch.nn import functional
+
+    for _ in range(updates):
+        data = model.replay_buffer.sample(model.batch_size, env=model._vec_normalize_env)
+        with torch.no_grad():
+            noise = (data.actions.clone().normal_(0, model.target_policy_noise)
+                     .clamp(-model.target_noise_clip, model.target_noise_clip))
+            following = (model.actor_target(data.next_observations) + noise).clamp(-1, 1)
+            next_q = torch.cat(model.critic_target(data.next_observations, following), dim=1)
+            next_q, _ = torch.min(next_q, dim=1, keepdim=True)
+            target = data.rewards + (1 - data.dones) * model.gamma * next_q
+        current = model.critic(data.observations, data.actions)
+        loss = sum(functional.mse_loss(q, target) for q in current)
+        model.critic.optimizer.zero_grad()
+        loss.backward()
+        model.critic.optimizer.step()
+        polyak_update(model.critic.parameters(), model.critic_target.parameters(), model.tau)
 
 
 class Cloning:
@@ -286,20 +462,8 @@ class Cloning:
                              for key in model.observation_space.spaces}
         self._rng = np.random.default_rng(model.seed)
 
-    def pretrain(self, updates: int, batch_size: int) -> None:
-        """Clone the demonstrations ``updates`` times (no critic yet: plain cloning)."""
-        optimizer = self.model.actor.optimizer
-        for _ in range(updates):
-            optimizer.zero_grad()
-            self.backward(batch_size, critic=False)
-            optimizer.step()
-        self.model.actor_target.load_state_dict(self.model.actor.state_dict())
-
-    def backward(self, batch_size: int, critic: bool) -> float:
-        """Add the gradient of the cloning loss on a batch to the actor's; return the loss.
-
-        Without a ``critic`` (before there is one) the loss is the plain squared error.
-        """
+    def backward(self, batch_size: int) -> float:
+        """Add the gradient of the cloning loss on a batch to the actor's; return the loss."""
         torch = self._torch
         model = self.model
         rows = torch.as_tensor(self._rng.integers(0, len(self.actions), batch_size))
@@ -307,62 +471,74 @@ class Cloning:
         demonstrated = self.actions[rows]
         actions = model.actor(observations)
         error = ((actions - demonstrated) ** 2).sum(dim=1)
-        if critic:
-            with torch.no_grad():
-                q_demonstrated = model.critic.q1_forward(observations, demonstrated)
-                q_actor = model.critic.q1_forward(observations, actions)
-                better = (q_demonstrated > q_actor).float().squeeze(1)
-                scale = self.weight * q_actor.abs().mean()
-            loss = scale * (error * better if self.q_filter else error).mean()
-        else:
-            loss = error.mean()
+        with torch.no_grad():
+            q_demonstrated = model.critic.q1_forward(observations, demonstrated)
+            q_actor = model.critic.q1_forward(observations, actions)
+            better = (q_demonstrated > q_actor).float().squeeze(1)
+            scale = self.weight * q_actor.abs().mean()
+        loss = scale * (error * better if self.q_filter else error).mean()
         loss.backward()
         return loss.item()
 
 
-def export(model, args: argparse.Namespace, env: gym.Env, seconds: float,
+def export(model, record: dict[str, Any], steps: int, seconds: float,
            curve: list[tuple[int, float, float]]) -> Actor:
     """Return the model's actor as a NumPy :class:`Actor` with its training record."""
-    # Stable-Baselines3's MultiInputPolicy flattens the observation dict in the space's order.
+    # Stable-Baselines3's MultiInputPolicy flattens the observation dict in the space's order;
+    # the fixed standardisation folds into the first layer.
     network = model.actor.mu
     linear = [layer for layer in network if hasattr(layer, 'weight')]
-    layers = [(layer.weight.detach().cpu().numpy().copy(),
-               layer.bias.detach().cpu().numpy().copy()) for layer in linear]
-    layers[0] = (layers[0][0] * model.actor.features_extractor.scale, layers[0][1])
+    layers = [(layer.weight.detach().cpu().numpy().astype(np.float64),
+               layer.bias.detach().cpu().numpy().astype(np.float64)) for layer in linear]
+    extractor = model.actor.features_extractor
+    mean = extractor.mean.cpu().numpy().astype(np.float64)
+    std = extractor.std.cpu().numpy().astype(np.float64)
+    weight, bias = layers[0]
+    layers[0] = (weight / std, bias - (weight / std) @ mean)
     meta = {
-        'env_id': args.env,
-        'algo': args.algo,
-        'observation_keys': list(env.observation_space.spaces),
-        'action_low': env.action_space.low.tolist(),
-        'action_high': env.action_space.high.tolist(),
-        'episode_steps': EPISODE_STEPS[args.env],
-        'timesteps': args.timesteps,
-        'seed': args.seed,
-        'demos': args.demos,
-        'bc': args.bc,
-        'q_filter': args.q_filter,
-        'pretrain': args.pretrain,
+        'env_id': record['env'],
+        'algo': record['algo'],
+        'method': method(record),
+        'observation_keys': record['observation_keys'],
+        'action_low': record['action_low'],
+        'action_high': record['action_high'],
+        'episode_steps': EPISODE_STEPS[record['env']],
+        'timesteps': steps,
+        'seed': record['seed'],
+        'demos': record['demos'],
+        'cloned_before_rl': 0,  # demonstrations cloned before the first update: none
+        'bc': record['bc'],
+        'q_filter': record['q_filter'],
+        'critic_warmup': record['critic_warmup'],
+        'grasped_share': record['grasped_share'],
         'train_seconds': round(seconds, 1),
-        'hyperparameters': dict(HYPERPARAMETERS, input_scale=INPUT_SCALE[args.env]),
+        'hyperparameters': dict(HYPERPARAMETERS, net_arch=record['net'],
+                                actor_lr_share=record['actor_lr_share']),
         'curve': [{'steps': s, 'success': r, 'seconds': round(t, 1)} for s, r, t in curve],
     }
     return Actor(layers, meta)
 
 
-def plot_curve(curve: list[tuple[int, float, float]], title: str, path: Path) -> None:
-    """Draw success rate over environment steps (wall time on the top axis) into ``path``."""
+def plot_curves(curves: dict[int, list[tuple[int, float, float]]], title: str,
+                path: Path) -> None:
+    """Draw each seed's success rate over environment steps into ``path``."""
     import matplotlib
     matplotlib.use('Agg')
     from matplotlib import pyplot
 
-    steps, rates, seconds = zip(*curve)
     figure, axes = pyplot.subplots(figsize=(6.4, 3.6), dpi=100)
-    axes.plot(steps, rates, marker='o', markersize=3)
+    longest = 0.0
+    for seed, curve in sorted(curves.items()):
+        steps, rates, seconds = zip(*curve)
+        longest = max(longest, seconds[-1])
+        axes.plot(steps, rates, marker='o', markersize=3, label=f'seed {seed}')
     axes.set_xlabel('environment steps')
     axes.set_ylabel('success rate')
     axes.set_ylim(-0.02, 1.02)
     axes.grid(alpha=0.3)
-    axes.set_title(f'{title}: {seconds[-1] / 60:.1f} min of training', fontsize=10)
+    if len(curves) > 1:
+        axes.legend(fontsize=8)
+    axes.set_title(f'{title}: up to {longest / 60:.1f} min of training', fontsize=9)
     figure.tight_layout()
     write_atomically(path, lambda f: figure.savefig(f, format='png'))
     pyplot.close(figure)

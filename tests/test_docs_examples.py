@@ -46,6 +46,7 @@ _FENCE = re.compile(r'^```(\S*)\s*$')
 # The pages whose blocks talk to a running graph, and what else runs beside it there.
 GRAPH_PAGES = {'README.md': (), 'docs/running.md': (), 'docs/from-v-rep.md': (),
                'docs/cartesian-and-pick.md': (),
+               'docs/recording-and-3d.md': (),
                'docs/learning.md': ('policy',)}
 # Commands that run until Ctrl-C, and the output that shows each works (any line for the rest).
 _GRAPH = re.compile(r'^(ros2 launch ur_rg2_bringup graph\.launch\.py|'

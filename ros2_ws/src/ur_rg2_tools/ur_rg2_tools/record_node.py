@@ -93,12 +93,16 @@ class RecorderNode(Node):
         self._progress_at = (self._started, 0)
         self._tty = sys.stderr.isatty()
         self._writer = threading.Thread(target=self._write_loop, name='mcap-writer')
-        self._writer.start()
-        self.create_timer(DISCOVERY_PERIOD_S, self._discover)
-        self.create_timer(0.5 if self._tty else 5.0, self._progress)
-        what = 'every topic' if self._wanted is None else ', '.join(sorted(self._wanted))
-        self.get_logger().info(f'recording {what} to {self.path} (Ctrl-C ends it)')
-        self._discover()
+        try:
+            self.create_timer(DISCOVERY_PERIOD_S, self._discover)
+            self.create_timer(0.5 if self._tty else 5.0, self._progress)
+            what = 'every topic' if self._wanted is None else ', '.join(sorted(self._wanted))
+            self.get_logger().info(f'recording {what} to {self.path} (Ctrl-C ends it)')
+            self._discover()  # its topics wait in the queue for the writer
+            self._writer.start()  # last: a Ctrl-C before leaves no thread behind
+        except BaseException:
+            self._bag.finish()  # a complete file, with nothing in it
+            raise
 
     def failure(self) -> str | None:
         """Return why the recording cannot go on, or None (run_node asks after every wait)."""

@@ -77,9 +77,9 @@ class ReplayNode(Node):
         recorded = {channel.topic for channel in recording.channels.values()}
         wanted = {topic if topic.startswith('/') else '/' + topic for topic in options.topics}
         unknown = wanted - recorded
-        if unknown:
-            raise RecordingError(f'{", ".join(sorted(unknown))} not in {options.file}; it has '
-                                 f'{", ".join(sorted(recorded))}')
+        if unknown:  # as ros2 bag play: the others are replayed
+            self.get_logger().warning(f'{", ".join(sorted(unknown))} not in {options.file}; it '
+                                      f'has {", ".join(sorted(recorded)) or "no topics"}')
         self._topics = sorted(wanted) if wanted else None
         self._outputs = {}
         for channel_id, channel in recording.channels.items():
@@ -102,11 +102,11 @@ class ReplayNode(Node):
         self.error: str | None = None
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._play, name='replay', daemon=True)
-        self._thread.start()
         self.get_logger().info(
             f'replaying {options.file}: {recording.message_count} messages over '
             f'{(recording.end_ns - recording.start_ns) / 1e9:.1f} s at rate {self._rate:g}'
             f'{", looping" if self._loop else ""} (Ctrl-C stops)')
+        self._thread.start()
 
     def failure(self) -> str | None:
         """Return why the replay failed (run_node asks after every wait)."""
@@ -167,7 +167,7 @@ def main(args: list[str] | None = None) -> int:
         get_logger(NODE_NAME).error(str(error))
         return 1
     return run_node(lambda: ReplayNode(recording, options), args, NODE_NAME,
-                    startup_errors=(RecordingError,), failure=ReplayNode.failure)
+                    failure=ReplayNode.failure)
 
 
 if __name__ == '__main__':

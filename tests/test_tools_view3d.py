@@ -62,7 +62,7 @@ def test_only_the_meshes_the_description_names_are_served(served):
     for path in ('mesh/1.obj', 'mesh/0.txt', 'vendor/../view3d_web.py',
                  'vendor/%2e%2e/view3d_web.py', 'mesh/..%2fsecret.txt'):
         assert get(url + path)[0] == 404, path
-    assert get(url + 'vendor/three/build/three.module.js')[0] == 200
+    assert get(url + 'vendor/three/three.module.js')[0] == 200
     assert get(url + 'cloud')[0] == 503  # no depth image yet: said so, no crash
 
 

@@ -7,7 +7,10 @@
   ``flange`` -> ``tool0``, and ``base``, ``ft_frame``), the joint origins that its
   ``config/<model>/default_kinematics.yaml`` gives for the UR5, UR3, UR5e and UR3e (UR's
   DH parameters), and the limits of ``config/<model>/joint_limits.yaml`` (a UR3's wrist 3 is
-  continuous). Checked by hand against those files; no mesh, no inertia.
+  continuous); no mesh, no inertia. Checked against ur_description 2.4.5's own
+  ``ur.urdf.xacro`` rendered with xacro 2.1.1 (PyPI) for each model: every joint's type,
+  parent, child, origin, axis and limits the same (tests/test_motion_ur_descriptions.py does
+  that check where ur_description is installed).
 - :func:`chain_pose`: forward kinematics along a description's joints (origins and axes),
   written apart from ur_rg2_motion.kinematics as an independent judge.
 - rclpy stand-ins shaped as the real drivers: :class:`UrDriver` (ur_robot_driver: its

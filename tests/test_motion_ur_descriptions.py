@@ -2,11 +2,13 @@
 
 The descriptions are shaped as ur_description's ``ur_macro.xacro`` renders them
 (tests/real_robot_standins.py says what they were checked against): ``base_link_inertia``,
-``flange`` -> ``tool0``, no ``rg2_tcp``. Every tool pose is judged by forward kinematics
+``flange`` -> ``tool0``, no ``rg2_tcp``. Where ur_description and xacro are installed (a ROS
+install), its own xacro output is checked too. Every tool pose is judged by forward kinematics
 along the description's own chain, not by the DH model under test.
 """
 
 import math
+import xml.etree.ElementTree as ET
 
 from conftest import wait_for
 from geometry_msgs.msg import PoseStamped
@@ -58,6 +60,45 @@ def test_the_model_is_told_by_the_chain_and_ik_lands_by_the_chains_fk(model):
         assert kinematics.rotation_angle(reached, target) < 1e-3
         landed += 1
     assert landed > 250
+
+
+def _joints(urdf: str) -> dict:
+    return {joint.get('name'): (joint.get('type'), joint.find('parent').get('link'),
+                                joint.find('child').get('link'),
+                                *(np.array([float(v) for v in element.get(key).split()])
+                                  for element, key in ((joint.find('origin'), 'xyz'),
+                                                       (joint.find('origin'), 'rpy'))),
+                                {k: float(v) for k, v in (joint.find('limit').attrib.items()
+                                                          if joint.find('limit') is not None
+                                                          else ()) if k != 'effort'})
+            for joint in ET.fromstring(urdf).iter('joint')}
+
+
+@pytest.mark.parametrize('model', MODELS)
+def test_urs_own_xacro_output_is_the_stand_ins_and_ik_lands_on_it(model):
+    xacro = pytest.importorskip('xacro')
+    share = pytest.importorskip('ament_index_python.packages')
+    try:
+        package = share.get_package_share_directory('ur_description')
+    except share.PackageNotFoundError:
+        pytest.skip('ur_description is not installed')
+    urdf = xacro.process_file(f'{package}/urdf/ur.urdf.xacro',
+                              mappings={'ur_type': model, 'name': model}).toxml()
+    ours, theirs = _joints(ur_description(model)), _joints(urdf)
+    assert ours.keys() == theirs.keys()
+    for name, (kind, parent, child, xyz, rpy, limit) in theirs.items():
+        assert ours[name][:3] == (kind, parent, child), name
+        assert np.allclose(ours[name][3], xyz) and np.allclose(ours[name][4], rpy), name
+        assert ours[name][5] == pytest.approx(limit), name
+    arm = ArmKinematics.from_urdf(urdf, tcp_offset=TCP_OFFSET)
+    assert arm.model == model
+    for q in np.random.default_rng(5).uniform(-math.pi, math.pi, size=(50, 6)):
+        target = tcp_by_chain(urdf, q)
+        try:
+            reached = tcp_by_chain(urdf, arm.solve(target, np.zeros(6)))
+        except KinematicsError:
+            continue
+        assert np.linalg.norm(reached[:3, 3] - target[:3, 3]) < TOLERANCE
 
 
 def test_a_description_without_the_tcp_or_the_chain_is_refused_naming_what_is_missing():

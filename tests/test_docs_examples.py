@@ -2,7 +2,7 @@
 
 Every ``python``, ``sh`` and ``bash`` block of README.md and docs/*.md is run here, page by
 page, each page with one graph of its own (``ros2 launch ur_rg2_bringup graph.launch.py`` on
-a domain of its own) where its blocks need one; or the page marks the block, on the line
+a domain of its own); or the page marks the block, on the line
 before it, with ``<!-- docs test: not run, REASON -->``, REASON one of ``MARKS``.
 
 A shell block runs command by command, as typed in a terminal where ``source scripts/env.sh``
@@ -43,11 +43,8 @@ MARKS = ('needs a display', 'needs a robot', 'long training', 'a long run', 'nee
          'needs Docker', 'the set-up itself')
 _MARK = re.compile(r'^<!-- docs test: not run, (.+?) -->$')
 _FENCE = re.compile(r'^```(\S*)\s*$')
-# The pages whose blocks talk to a running graph, and what else runs beside it there.
-GRAPH_PAGES = {'README.md': (), 'docs/running.md': (), 'docs/from-v-rep.md': (),
-               'docs/cartesian-and-pick.md': (),
-               'docs/recording-and-3d.md': (),
-               'docs/learning.md': ('policy',)}
+# What runs beside a page's graph, for the page's blocks that talk to it.
+BESIDE_GRAPH = {'docs/learning.md': ('policy',)}
 # Commands that run until Ctrl-C, and the output that shows each works (any line for the rest).
 _GRAPH = re.compile(r'^(ros2 launch ur_rg2_bringup graph\.launch\.py|'
                     r'python -m ur_rg2_bringup\.run)(?!.*--(show-args|help))')
@@ -185,9 +182,14 @@ class Process:
 
 
 def stopped_cleanly(process: Process) -> None:
-    """Ctrl-C ends ``process`` with exit 0 (130: bash's own Ctrl-C) and no traceback."""
+    """Ctrl-C ends ``process`` with exit 0 and no traceback.
+
+    Or 130, bash's own exit on Ctrl-C; or 2 from a ``ros2`` verb: ros2cli exits with the
+    signal's number on a KeyboardInterrupt (``ros2 topic echo`` and the like).
+    """
     code = process.interrupt()
-    assert code in (0, 130, -signal.SIGINT), \
+    ros2cli = (signal.SIGINT,) if process.command.startswith('ros2 ') else ()
+    assert code in (0, 130, -signal.SIGINT, *ros2cli), \
         f'{process.command!r} exited {code} on Ctrl-C:\n{process.output[-3000:]}'
     assert 'Traceback' not in process.output, process.output[-3000:]
 
@@ -307,13 +309,12 @@ def test_the_page_s_blocks_run_as_shown(page):
                ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
     background = []
     try:
-        if name in GRAPH_PAGES:
-            graph = Process('ros2 launch ur_rg2_bringup graph.launch.py port:=0', env)
-            background.append(graph)
-            graph.wait_for(_GRAPH_READY, START_TIMEOUT)
-            for command in GRAPH_PAGES[name]:
-                background.append(Process(command, env))
-                background[-1].wait_for([r'policy/run'], START_TIMEOUT)
+        graph = Process('ros2 launch ur_rg2_bringup graph.launch.py port:=0', env)
+        background.append(graph)
+        graph.wait_for(_GRAPH_READY, START_TIMEOUT)
+        for command in BESIDE_GRAPH.get(name, ()):
+            background.append(Process(command, env))
+            background[-1].wait_for([r'policy/run'], START_TIMEOUT)
         for block in page_blocks(page):
             if block.mark:
                 continue

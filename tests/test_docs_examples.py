@@ -49,6 +49,8 @@ BESIDE_GRAPH = {'docs/learning.md': ('policy',)}
 _GRAPH = re.compile(r'^(ros2 launch ur_rg2_bringup graph\.launch\.py|'
                     r'python -m ur_rg2_bringup\.run)(?!.*--(show-args|help))')
 _STREAMING = re.compile(r'^(ros2 (run|topic echo(?!.*--once)|topic hz)|policy|vision|sim)\b')
+# ros2 run's commands that are no nodes, and end by themselves.
+_ENDS_BY_ITSELF = re.compile(r'^ros2 run ur_rg2_tools recover\b|\s--help\b')
 _SIM = re.compile(r'^(ros2 run ur_rg2_sim sim|sim)\b')
 READY = ((_GRAPH, r'ur_rg2_sim\]: simulating'),
          (_SIM, r'ur_rg2_sim\]: simulating'),
@@ -147,10 +149,15 @@ class Process:
             return bool(chunk)
         return True
 
-    def wait_for(self, patterns, timeout: float) -> None:
-        """Read until every regex of ``patterns`` matched a line; fail if it exits first."""
+    def wait_for(self, patterns, timeout: float, may_end: bool = False) -> None:
+        """Read until every regex of ``patterns`` matched a line; fail if it exits first.
+
+        With ``may_end``, an end of the command is fine too (the caller checks its exit code).
+        """
         deadline = time.monotonic() + timeout
         while not all(re.search(p, self.output, re.MULTILINE) for p in patterns):
+            if may_end and self.process.poll() is not None:
+                return
             assert self.process.poll() is None, f'{self.command!r} exited ' \
                 f'{self.process.returncode} before it was ready:\n{self.output[-3000:]}'
             assert time.monotonic() < deadline, f'{self.command!r} not ready within ' \
@@ -267,9 +274,12 @@ def run_command(block: Block, command: str, env: dict[str, str]) -> None:
     ready = next((pattern for match, pattern in READY if match.match(command)), r'\S')
     keys = command.startswith('ros2 run ur_rg2_teleop keys')
     process = Process(command, env, terminal=keys)
+    streaming = (_GRAPH.match(command) or _STREAMING.match(command)) and not (
+        _ENDS_BY_ITSELF.search(command))
     try:
-        if _GRAPH.match(command) or _STREAMING.match(command):
-            process.wait_for([ready], START_TIMEOUT)
+        if streaming:  # until it is ready, or ends (then it has to end well)
+            process.wait_for([ready], START_TIMEOUT, may_end=True)
+        if streaming and process.process.poll() is None:
             stopped_cleanly(process)
         else:
             code = process.finish(RUN_TIMEOUT)

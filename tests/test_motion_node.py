@@ -20,7 +20,12 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 from ur_rg2_common.contract import LATCHED_QOS
-from ur_rg2_common.tf_buffer import TransformBuffer, pose_matrix, quaternion_from_matrix
+from ur_rg2_common.tf_buffer import (
+    TransformBuffer,
+    pose_matrix,
+    quaternion_from_matrix,
+    transform_point,
+)
 from ur_rg2_motion.kinematics import rotation_angle
 from ur_rg2_motion.motion_node import MotionNode
 from ur_rg2_motion.planning import gripper_down
@@ -333,7 +338,12 @@ def test_pick_picks_the_ball_the_vision_node_sees(ros_graph):
         wait_for(lambda: np.abs(rig.joints()).max() < 0.01, TIMEOUT, 'the arm at home')
         rig.sim.set_parameters([Parameter('ball_position', value=list(placement))])
         seen.clear()
-        wait_for(lambda: len(seen) > 3, TIMEOUT, f'vision to see the ball at {placement}')
+        # Frames rendered before the ball moved still show it where it was: wait for vision
+        # to see it at its new place.
+        wait_for(lambda at=placement: seen and np.linalg.norm(
+            transform_point(rig.tree.lookup('world', seen[-1].header.frame_id),
+                            (seen[-1].point.x, seen[-1].point.y, seen[-1].point.z))
+            - at) < 0.02, TIMEOUT, f'vision to see the ball at {placement}')
         answer = rig.pick()
         held = ball_held(rig, truth)
         assert answer.success == held, (placement, answer.message)

@@ -97,6 +97,22 @@ class ControllerArm:
         if response.status != GoalStatus.STATUS_SUCCEEDED:
             raise PickError(f'{what}: the move ended early: {response.result.error_string}')
 
+    def send(self, trajectory: Trajectory, on_end: Callable[[bool, str | None], None]) -> None:
+        """Send ``trajectory`` without waiting (a tool move).
+
+        ``on_end(refused, why)`` once it ends: ``why`` None when it succeeded.
+        """
+        def answered(future) -> None:
+            handle = future.result()
+            if not handle.accepted:
+                on_end(True, f'the trajectory controller refused the move ({REFUSED_HINT})')
+                return
+            handle.get_result_async().add_done_callback(lambda done: on_end(False, None if (
+                done.result().status == GoalStatus.STATUS_SUCCEEDED) else
+                f'the move ended early: {done.result().result.error_string}'))
+        self._trajectory.send_goal_async(
+            trajectory_goal(trajectory.times, trajectory.positions)).add_done_callback(answered)
+
     def start_grip(self, opening: float) -> object:
         """Send the gripper toward ``opening`` (m) at full force; return the goal's future."""
         goal = GripperCommand.Goal()

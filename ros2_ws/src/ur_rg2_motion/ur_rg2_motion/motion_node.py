@@ -15,7 +15,6 @@ import sys
 import threading
 import time
 
-from action_msgs.msg import GoalStatus
 from control_msgs.action import FollowJointTrajectory, GripperCommand
 from geometry_msgs.msg import PointStamped, PoseStamped, TransformStamped
 import numpy as np
@@ -38,7 +37,7 @@ from ur_rg2_common.parameters import declare_parameters
 from ur_rg2_common.spin import run_node
 from ur_rg2_common.tf_buffer import FrameLookupError, TransformBuffer, pose_matrix
 
-from ur_rg2_motion.goals import REFUSED_HINT, ControllerArm
+from ur_rg2_motion.goals import ControllerArm
 from ur_rg2_motion.kinematics import (
     BASE_LINK,
     ArmKinematics,
@@ -51,7 +50,6 @@ from ur_rg2_motion.messages import (
     ball_in_base_link,
     finite,
     pose_of,
-    trajectory_goal,
     unit_quaternion,
 )
 from ur_rg2_motion.pick import MIN_MOVE_DURATION, PickCancelledError, PickError, run_pick
@@ -164,7 +162,8 @@ class MotionNode(Node):
 
     def _on_tool_command(self, message: PoseStamped) -> None:
         try:
-            target = self._in_base_link(message.header.frame_id, pose_of(message.pose))
+            target = self._tf.lookup(BASE_LINK, message.header.frame_id or BASE_LINK) @ pose_of(
+                message.pose)
         except (ValueError, FrameLookupError) as error:
             self.get_logger().warning(f'tool_command rejected: {error}')
             return
@@ -189,9 +188,6 @@ class MotionNode(Node):
             return
         self._move_tool(jog_target(start, frame, step), 'tool_jog')
 
-    def _in_base_link(self, frame: str, pose: np.ndarray) -> np.ndarray:
-        return self._tf.lookup(BASE_LINK, frame or BASE_LINK) @ pose
-
     def _move_tool(self, target: np.ndarray, source: str) -> None:
         """Plan the TCP move to ``target`` (base_link) and send it; warn when refused."""
         try:
@@ -212,33 +208,17 @@ class MotionNode(Node):
             self._cancel_pick(source)
             with self._lock:
                 self._tool_target = target
-            future = self._trajectory.send_goal_async(
-                trajectory_goal(trajectory.times, trajectory.positions))
-        future.add_done_callback(lambda done: self._on_tool_goal(done, target, source))
+            self._arm_io.send(trajectory, lambda refused, why: self._on_tool_end(
+                target, source, refused, why))
 
-    def _on_tool_goal(self, future, target: np.ndarray, source: str) -> None:
-        handle = future.result()
-        if not handle.accepted:
-            self.get_logger().warning(f'{source}: the trajectory controller refused the move '
-                                      f'({REFUSED_HINT})')
-            self._end_tool_move(target)
-            return
-        handle.get_result_async().add_done_callback(
-            lambda done: self._on_tool_result(done, target, source))
-
-    def _on_tool_result(self, future, target: np.ndarray, source: str) -> None:
-        response = future.result()
+    def _on_tool_end(self, target: np.ndarray, source: str, refused: bool,
+                     why: str | None) -> None:
         with self._lock:
             replaced = self._tool_target is not target  # by a newer move: no news
-        if not replaced and response.status != GoalStatus.STATUS_SUCCEEDED:
-            self.get_logger().warning(
-                f'{source}: the move ended early: {response.result.error_string}')
-        self._end_tool_move(target)
-
-    def _end_tool_move(self, target: np.ndarray) -> None:
-        with self._lock:
-            if self._tool_target is target:
+            if not replaced:
                 self._tool_target = None
+        if why is not None and (refused or not replaced):
+            self.get_logger().warning(f'{source}: {why}')
 
     # -- pick_ball: the pick's Arm (ur_rg2_motion.pick) ------------------------------------------
 

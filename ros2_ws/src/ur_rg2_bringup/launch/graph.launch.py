@@ -6,7 +6,7 @@
 ``config/graph.yaml`` of this package; ``params_file:=FILE`` uses another file, and the
 arguments below override the file. The keyboard teleop is not started here: it needs a terminal
 (``ros2 run ur_rg2_teleop keys``, or ``ros2 run ur_rg2_bringup graph`` for both).
-A node that dies (a non-zero exit or a signal) ends the graph, saying which node and how.
+A node that exits on its own ends the graph, saying which node and how.
 """
 
 from launch import LaunchContext, LaunchDescription
@@ -79,11 +79,12 @@ def _node(package: str, executable: str, name: str, parameters: list, condition=
 
 
 def _end_graph(event: ProcessExited, context: LaunchContext) -> list | None:
-    """Shut the graph down when a node dies, saying which one and how."""
-    # Exit 0 is a node stopping on request: a terminal's Ctrl-C reaches every node at once,
-    # and launch may hear of their exits before its own SIGINT.
-    if context.is_shutdown or event.returncode == 0:
+    """Shut the graph down when a node exits on its own, saying which one and how."""
+    if context.is_shutdown:
         return None
     reason = f'{event.action.node_executable} {describe_exit(event.returncode)}'
-    launch.logging.get_logger('graph.launch.py').error(f'{reason}; stopping the graph')
+    logger = launch.logging.get_logger('graph.launch.py')
+    # Exit 0 is a stop on request, no error: a terminal's Ctrl-C reaches every node at once,
+    # and launch may hear of a node's exit before its own SIGINT.
+    (logger.info if event.returncode == 0 else logger.error)(f'{reason}; stopping the graph')
     return [Shutdown(reason=reason)]

@@ -223,7 +223,7 @@ def test_pick_refuses_a_ball_unseen_or_out_of_reach_and_stops_when_it_is_lost(ro
     wait_for(lambda: ball_seen_at(ghost), TIMEOUT, 'the ball at the policy node')
     started = call(run)
     assert started.success, started.message
-    wait_for(lambda: policy._episode is None or policy._episode['step'] >= 2, 3 * TIMEOUT,
+    wait_for(lambda: policy._episode is None or policy._episode.step >= 2, 3 * TIMEOUT,
              'the episode under way')
     shown[0] = None
     wait_for(lambda: driving and not driving[-1], 3 * TIMEOUT, 'the episode to end')

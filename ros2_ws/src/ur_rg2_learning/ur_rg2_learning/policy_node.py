@@ -18,7 +18,7 @@ loaded the machine is. A step whose arm goal is refused or stops short puts the 
 where the arm is, so that the next step moves on from there. A Reach episode ends when the
 TCP is at the ball's top; a Pick episode when the ball is held at its goal (15 cm above where
 it lay); both after the environment's episode length at the latest, or earlier when the
-camera has lost the ball (Pick: not held and unseen for ``_LOST_STEPS`` steps; the arm hides
+camera has lost the ball (Pick: not held and unseen for ``episode.LOST_STEPS`` steps; the arm hides
 it for a few steps of every grasp). ``policy/driving`` (std_msgs/Bool, latched) says whether
 the policy is driving the arm.
 """
@@ -64,39 +64,27 @@ from ur_rg2_motion.kinematics import (
 from ur_rg2_motion.messages import ball_in_base_link, trajectory_goal
 from ur_rg2_motion.planning import plan_joint_move, plan_pick
 
-from ur_rg2_learning import EPISODE_STEPS, PICK_ID, REACH_ID
+from ur_rg2_learning import PICK_ID, REACH_ID
 from ur_rg2_learning.actor import SHIPPED, Actor, PolicyError, shipped_policy
 from ur_rg2_learning.envs import (
     BALL_RADIUS,
     CONTROL_RATE,
     LIFT_GOAL,
-    LIFT_SUCCESS,
-    PICK_GOAL_TOLERANCE,
-    REACH_TOLERANCE,
     START_TCP,
-    move_target,
     pick_goal,
-    pick_observation,
-    reach_observation,
     start_joints,
-    step_duration,
     tcp_pose,
 )
+from ur_rg2_learning.episode import Episode, Outcome
 from ur_rg2_learning.scripted import APPROACH_HEIGHT
 
 NODE_NAME = 'ur_rg2_policy'
 _START_SPEED_SCALE = 0.4  # share of the joints' velocity limits for the move to the start
 _START_TIMEOUT = 30.0  # s for the start move beyond its duration
 _STEP_TIMEOUT = 10.0  # s for one step's goal to be answered and done, beyond its duration
-_LOST_STEPS = 30  # Pick steps (3 s of simulation time) a ball not held may go unseen
 # policy/run waits this long (s) for the latched transforms that place the ball and the floor
 # in base_link: a node started with the graph may be asked before /tf_static reached it.
 _TREE_WAIT = 5.0
-
-# A closed RG2 holds the ball when its fingers stopped this near the ball's diameter (the
-# motion node's grasp check) with the ball this near the TCP.
-_GRASP_TOLERANCE = 0.02  # m of opening
-_HELD_DISTANCE = 0.03  # m, ball centre to TCP
 
 _PARAMETERS = (
     ParameterSpec('policy_dir', 'reach', 'The policy to run: a directory written by '
@@ -131,7 +119,7 @@ class PolicyNode(Node):
         self._joints: np.ndarray | None = None
         self._opening: float | None = None
         self._ball: tuple[float, PointStamped] | None = None
-        self._episode: dict | None = None  # the running episode's state
+        self._episode: Episode | None = None  # the running episode
 
         self.create_subscription(String, 'robot_description', self._on_description, LATCHED_QOS)
         self.create_subscription(TFMessage, '/tf_static', self._on_tf, LATCHED_QOS)
@@ -257,11 +245,8 @@ class PolicyNode(Node):
             return response
         trajectory = plan_joint_move(joints, start_q, self._velocity_limits,
                                      _START_SPEED_SCALE, 1.0 / CONTROL_RATE)
-        episode = {'target': start, 'joints': start_q, 'step': 0,
-                   'previous': None, 'started': time.monotonic(), 'closed': False,
-                   'goal': pick_goal(centre), 'ball': None, 'unseen': 0, 'pending': 0,
-                   'held_back': False,
-                   'deadline': time.monotonic() + trajectory.duration + _START_TIMEOUT}
+        episode = Episode(self._picks, start, start_q, pick_goal(centre), self._radius(),
+                          time.monotonic() + trajectory.duration + _START_TIMEOUT)
         with self._lock:
             self._episode = episode
         self._driving.publish(Bool(data=True))
@@ -278,7 +263,7 @@ class PolicyNode(Node):
     def _radius(self) -> float:
         return self.get_parameter('ball_radius').value
 
-    def _on_start_goal(self, future, episode: dict) -> None:
+    def _on_start_goal(self, future, episode: Episode) -> None:
         handle = future.result()
         if not handle.accepted:
             self._end(episode, 'the trajectory controller refused the move to the start pose')
@@ -286,18 +271,18 @@ class PolicyNode(Node):
         handle.get_result_async().add_done_callback(
             lambda done: self._on_start_reached(done, episode))
 
-    def _on_start_reached(self, future, episode: dict) -> None:
+    def _on_start_reached(self, future, episode: Episode) -> None:
         if future.result().result.error_code != FollowJointTrajectory.Result.SUCCESSFUL:
             self._end(episode, 'the move to the start pose ended early: '
                       f'{future.result().result.error_string}')
             return
         if self._picks:  # the environment starts its episodes with the RG2 open
-            episode['pending'] = 1
+            episode.pending = 1
             self._send_gripper(RG2_MAX_OPENING, episode)
         else:
             self._step(episode)
 
-    def _step(self, episode: dict) -> None:
+    def _step(self, episode: Episode) -> None:
         """Observe, act and send one step; the next starts when the controllers are done."""
         with self._lock:
             if self._episode is not episode:
@@ -305,145 +290,74 @@ class PolicyNode(Node):
             joints, opening = self._joints, self._opening
         try:
             arm = self._kinematics()
-            tcp = arm.tcp_pose(joints)[:3, 3]
-            if episode['held_back']:  # the arm did not go to the last target: on from here
-                episode['target'], episode['joints'] = tcp, joints
-                episode['held_back'] = False
-            previous = episode['previous']
-            velocity = np.zeros(3) if previous is None else (tcp - previous) * CONTROL_RATE
-            episode['previous'] = tcp
-            if self._picks:
-                observation = self._pick_observation(episode, arm, tcp, velocity, opening)
-            else:
-                observation = self._reach_observation(episode, tcp, velocity)
+            observation = episode.observe(arm, joints, opening, self._ball_centre)
         except (ValueError, KinematicsError) as error:
             self._end(episode, f'stopped: {error}')
             return
-        if observation is None:  # the episode ended
+        if isinstance(observation, Outcome):
+            self._end(episode, observation.text, reached=observation.reached)
             return
-        action = np.clip(self.actor(observation), -1.0, 1.0)
-        episode['target'], episode['joints'] = move_target(arm, episode['target'],
-                                                           episode['joints'], action)
-        duration = step_duration(joints, episode['joints'], self._velocity_limits)
-        episode['step'] += 1
-        episode['deadline'] = time.monotonic() + duration + _STEP_TIMEOUT
-        closed = self._picks and bool(action[3] < 0.0)
-        episode['pending'] = 1 + (closed != episode['closed'])
-        if closed != episode['closed']:
-            episode['closed'] = closed
-            self._send_gripper(0.0 if closed else RG2_MAX_OPENING, episode)
-        self._send([duration], episode['joints'][None]).add_done_callback(
+        step = episode.act(self.actor(observation), arm, joints, self._velocity_limits,
+                           RG2_MAX_OPENING)
+        episode.deadline = time.monotonic() + step.duration + _STEP_TIMEOUT
+        episode.pending = 1 + (step.gripper is not None)
+        if step.gripper is not None:
+            self._send_gripper(step.gripper, episode)
+        self._send([step.duration], step.joints[None]).add_done_callback(
             lambda future: self._on_step_goal(future, episode))
 
-    def _reach_observation(self, episode: dict, tcp: np.ndarray,
-                           velocity: np.ndarray) -> dict | None:
-        """Return Reach's observation, or None when the episode ended at this step."""
-        goal = self._ball_centre() + (0.0, 0.0, self._radius())
-        distance = float(np.linalg.norm(tcp - goal))
-        if distance < REACH_TOLERANCE:
-            self._end(episode, f'reached the ball: TCP {distance * 1000:.0f} mm from its top '
-                      f'after {episode["step"]} steps', reached=True)
-            return None
-        if episode['step'] >= EPISODE_STEPS[REACH_ID]:
-            self._end(episode, f'not reached after {episode["step"]} steps: TCP '
-                      f'{distance * 1000:.0f} mm from the ball top')
-            return None
-        return reach_observation(tcp, velocity, goal)
-
-    def _pick_observation(self, episode: dict, arm: ArmKinematics, tcp: np.ndarray,
-                          velocity: np.ndarray, opening: float | None) -> dict | None:
-        """Return Pick's observation, or None when the episode ended at this step."""
-        if opening is None:
-            raise ValueError('no RG2 finger joints in joint_states')
-        gripping = episode['closed'] and abs(opening - 2 * self._radius()) < _GRASP_TOLERANCE
-        if not gripping:
-            episode['held_at'] = None
-        if episode.get('held_at') is not None:
-            # Held, the ball moves with the TCP; the fingers hide much of it from the camera,
-            # whose estimate of what is left of it is worse than this.
-            ball = tcp + episode['held_at']
-        else:
-            try:
-                ball = self._ball_centre()
-                episode['unseen'] = 0
-            except ValueError as error:
-                episode['unseen'] += 1
-                if episode['ball'] is None:
-                    raise
-                if episode['unseen'] > _LOST_STEPS:
-                    raise ValueError(f'the ball is no longer seen: {episode["unseen"]} steps '
-                                     f'without it ({error})') from None
-                ball = episode['ball']  # hidden by the arm: it lies where it was last seen
-            if gripping and np.linalg.norm(ball - tcp) < _HELD_DISTANCE:
-                episode['held_at'] = ball - tcp
-        previous = episode['ball']
-        ball_velocity = np.zeros(3) if previous is None else (ball - previous) * CONTROL_RATE
-        episode['ball'] = ball
-        held = episode.get('held_at') is not None
-        height = float(ball[2] - self._radius() - arm.floor_z)  # its bottom above the floor
-        lifted = held and height >= LIFT_SUCCESS
-        at_goal = np.linalg.norm(ball - episode['goal']) < PICK_GOAL_TOLERANCE
-        if (lifted and at_goal) or episode['step'] >= EPISODE_STEPS[PICK_ID]:
-            state = (f'held {height * 100:.1f} cm above the floor' if held else
-                     f'not held, {height * 100:.1f} cm above the floor, gripper '
-                     f'{opening * 1000:.0f} mm')
-            self._end(episode, f"{'picked' if lifted else 'missed'} the ball: {state} after "
-                      f'{episode["step"]} steps', reached=lifted)
-            return None
-        return pick_observation(tcp, velocity, opening, ball, ball_velocity, episode['goal'])
-
-    def _on_step_goal(self, future, episode: dict) -> None:
+    def _on_step_goal(self, future, episode: Episode) -> None:
         handle = future.result()
         if not handle.accepted:  # the arm holds where it is: the next step starts there
-            episode['held_back'] = True
+            episode.held_back = True
             self._step_done(episode)
             return
         handle.get_result_async().add_done_callback(
             lambda done: self._on_step_result(done, episode))
 
-    def _on_step_result(self, future, episode: dict) -> None:
+    def _on_step_result(self, future, episode: Episode) -> None:
         if future.result().result.error_code != FollowJointTrajectory.Result.SUCCESSFUL:
-            episode['held_back'] = True  # stopped short (a contact, a preempting command)
+            episode.held_back = True  # stopped short (a contact, a preempting command)
         self._step_done(episode)
 
-    def _send_gripper(self, position: float, episode: dict) -> None:
+    def _send_gripper(self, position: float, episode: Episode) -> None:
         goal = GripperCommand.Goal()
         goal.command.position = position
         goal.command.max_effort = RG2_MAX_FORCE
         self._gripper.send_goal_async(goal).add_done_callback(
             lambda future: self._on_gripper_goal(future, episode))
 
-    def _on_gripper_goal(self, future, episode: dict) -> None:
+    def _on_gripper_goal(self, future, episode: Episode) -> None:
         handle = future.result()
         if not handle.accepted:
             self._end(episode, f'{GRIPPER_ACTION} refused the goal')
             return
         handle.get_result_async().add_done_callback(lambda _: self._step_done(episode))
 
-    def _step_done(self, episode: dict) -> None:
+    def _step_done(self, episode: Episode) -> None:
         """Count one finished goal of the step; the last of them starts the next step."""
         with self._lock:
-            episode['pending'] -= 1
-            last = episode['pending'] == 0
+            episode.pending -= 1
+            last = episode.pending == 0
         if last:
             self._step(episode)
 
     def _watch(self) -> None:
         with self._lock:
             episode = self._episode
-        if episode is not None and time.monotonic() > episode['deadline']:
+        if episode is not None and time.monotonic() > episode.deadline:
             self._end(episode, f'no answer from {TRAJECTORY_ACTION} in time')
 
     def _send(self, times, positions):
         return self._trajectory.send_goal_async(trajectory_goal(times, positions))
 
-    def _end(self, episode: dict, outcome: str, reached: bool = False) -> None:
+    def _end(self, episode: Episode, outcome: str, reached: bool = False) -> None:
         with self._lock:
             if self._episode is not episode:
                 return
             self._episode = None
         self._driving.publish(Bool(data=False))
-        seconds = time.monotonic() - episode['started']
+        seconds = time.monotonic() - episode.started
         # rclpy refuses two severities from one call site: one call each.
         if reached:
             self.get_logger().info(f'policy episode: {outcome} ({seconds:.1f} s)')

@@ -24,6 +24,7 @@ def run_seeds(config: dict[str, Any], seeds: list[int], out: Path, num_cpus: int
 
     # Every seed's curve lines, not one of several alike (Ray's default).
     os.environ.setdefault('RAY_DEDUP_LOGS', '0')
+    os.environ.setdefault('RAY_USAGE_STATS_ENABLED', '0')  # nothing sent anywhere
 
     if address:
         ray.init(address=address, include_dashboard=False, log_to_driver=True)

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+import shlex
 import sys
 import time
 from typing import Any
@@ -128,6 +129,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     config = {key: value for key, value in vars(args).items()
               if key not in ('seeds', 'seed', 'num_cpus', 'address', 'out')}
+    config['command'] = shlex.join(['train_policy', *(sys.argv[1:] if argv is None else argv)])
     out = Path(args.out)
     if args.seeds is None:
         result = train_seed(config, args.seed)
@@ -499,6 +501,7 @@ def export(model, record: dict[str, Any], steps: int, seconds: float,
         'env_id': record['env'],
         'algo': record['algo'],
         'method': method(record),
+        'command': record.get('command'),
         'observation_keys': record['observation_keys'],
         'action_low': record['action_low'],
         'action_high': record['action_high'],

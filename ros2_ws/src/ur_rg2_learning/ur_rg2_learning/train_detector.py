@@ -25,6 +25,7 @@ import json
 import math
 import os
 from pathlib import Path
+import shutil
 import sys
 import time
 
@@ -125,21 +126,24 @@ def choose_threshold(ranked: list[tuple[float, bool]], balls: int) -> float:
     return threshold
 
 
-def _torch_boxes(torch, model, size: tuple[int, int], floor: float = CONFIDENCE):
-    """Return ``boxes(rgb)`` for :func:`evaluate` from the torch model (frames as scaled)."""
-    height, width = size
+def export(torch, net, size: tuple[int, int], directory: Path, settings: dict) -> BallModel:
+    """Write the network (with its decoding) as ``model.onnx`` and ``settings`` beside it.
 
-    def boxes(rgb: np.ndarray) -> list[tuple[float, ...]]:
-        scale = rgb.shape[1] / width
-        small = rgb if rgb.shape[:2] == (height, width) else cv2.resize(
-            rgb, (width, height), interpolation=cv2.INTER_AREA)
-        with torch.no_grad():
-            rows = model(torch.from_numpy(np.ascontiguousarray(
-                small.transpose(2, 0, 1)[None], dtype=np.float32) / 255))[0].numpy().T
-        rows = rows[rows[:, 4] >= floor]
-        return [((cx - w / 2) * scale, (cy - h / 2) * scale, (cx + w / 2) * scale,
-                 (cy + h / 2) * scale, score) for cx, cy, w, h, score in rows]
-    return boxes
+    Returns it loaded as the vision node loads it: scoring it scores what the node runs
+    (ONNX Runtime, the frame scaled as the node scales it, non-maximum suppression).
+    """
+    from ur_rg2_learning.detector_net import Exported
+
+    directory.mkdir(parents=True, exist_ok=True)
+    temporary = directory / (MODEL_FILE + '.tmp')
+    net.eval()
+    torch.onnx.export(Exported(net), (torch.zeros(1, 3, *size),), str(temporary),
+                      dynamo=False, opset_version=13, input_names=['images'],
+                      output_names=['output'])
+    os.replace(temporary, directory / MODEL_FILE)
+    write_atomically(directory / SETTINGS_FILE,
+                     lambda f: f.write((json.dumps(settings, indent=2) + '\n').encode()))
+    return BallModel(directory)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -175,7 +179,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         import torch
 
-        from ur_rg2_learning.detector_net import BallNet, Exported, loss, targets
+        from ur_rg2_learning.detector_net import BallNet, loss, targets
     except ImportError as error:
         print(f'train_detector needs the learning set-up ({error}): run '
               '`scripts/bootstrap requirements-learning.txt`', file=sys.stderr)
@@ -201,6 +205,8 @@ def main(argv: list[str] | None = None) -> int:
     steps_per_epoch = max(1, len(images) // args.batch)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    scratch = out / '.epoch'  # each epoch's export, scored as the node runs it
+    settings = {'input_size': list(size), 'names': ['ball'], 'ball_class': 0, 'iou': IOU}
     rows: list[dict] = []
     best, best_state = -1.0, None
     crop = (args.crop, args.crop)
@@ -227,8 +233,8 @@ def main(argv: list[str] | None = None) -> int:
             optimizer.step()
             sums[0] += float(focal.detach())
             sums[1] += float(box.detach())
-        net.eval()
-        scores = evaluate(_torch_boxes(torch, Exported(net), size), val_check)
+        scores = evaluate(export(torch, net, size, scratch, dict(
+            settings, confidence=CONFIDENCE)).boxes, val_check)
         f1 = 2 * scores.recall * scores.precision / max(scores.recall + scores.precision, 1e-9)
         minutes = (time.monotonic() - started) / 60
         rows.append({'epoch': epoch, 'minutes': round(minutes, 2),
@@ -249,26 +255,18 @@ def main(argv: list[str] | None = None) -> int:
     load = {'start': round(load_start, 1), 'end': round(os.getloadavg()[0], 1),
             'end_15min': round(os.getloadavg()[2], 1)}
     net.load_state_dict(best_state)
-    net.eval()
-    scored = evaluate(_torch_boxes(torch, Exported(net), size, FLOOR), val_pairs)
+    scored = evaluate(export(torch, net, size, scratch, dict(settings, confidence=FLOOR)).boxes,
+                      val_pairs)
     confidence = choose_threshold(scored.ranked, scored.balls)
-    temporary = out / (MODEL_FILE + '.tmp')
-    torch.onnx.export(Exported(net), (torch.zeros(1, 3, *size),), str(temporary),
-                      dynamo=False, opset_version=13, input_names=['images'],
-                      output_names=['output'])
-    os.replace(temporary, out / MODEL_FILE)
+    shutil.rmtree(scratch, ignore_errors=True)
     text = io.StringIO()
     writer = csv.DictWriter(text, fieldnames=list(rows[0]))
     writer.writeheader()
     writer.writerows(rows)
     write_atomically(out / 'results.csv', lambda f: f.write(text.getvalue().encode()))
     plot_curve(rows, out / 'training_curve.png')
-    settings = {
-        'input_size': list(size),
-        'names': ['ball'],
-        'ball_class': 0,
+    settings.update({
         'confidence': confidence,
-        'iou': IOU,
         'layout': 'ur_rg2_learning.detector_net (CenterNet, stride 8) ONNX: 1 x 5 x N rows cx '
                   'cy w h score in input pixels of the frame scaled to the input',
         'licence': 'Apache-2.0 (trained by this project, from scratch)',
@@ -281,11 +279,9 @@ def main(argv: list[str] | None = None) -> int:
                                                               else argv)]),
                      'network': 'ur_rg2_learning.detector_net.BallNet',
                      'library': f'torch {torch.__version__} (BSD-3-Clause)'},
-    }
-    write_atomically(out / SETTINGS_FILE,
-                     lambda f: f.write((json.dumps(settings, indent=2) + '\n').encode()))
+    })
     # The validation metrics of the exported model, run as the vision node runs it.
-    scores = evaluate(BallModel(out).boxes, val_pairs)
+    scores = evaluate(export(torch, net, size, out, settings).boxes, val_pairs)
     settings['validation'] = {'recall': round(scores.recall, 4),
                               'precision': round(scores.precision, 4),
                               'mAP50': round(scores.map50, 4), 'images': scores.images}

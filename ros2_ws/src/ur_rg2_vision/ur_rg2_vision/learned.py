@@ -108,7 +108,7 @@ class BallModel:
         left, top = (width - inner_w) // 2, (height - inner_h) // 2
         canvas = np.full((height, width, 3), _PAD_GREY, np.uint8)
         canvas[top:top + inner_h, left:left + inner_w] = cv2.resize(
-            rgb, (inner_w, inner_h), interpolation=cv2.INTER_LINEAR)
+            rgb, (inner_w, inner_h), interpolation=cv2.INTER_AREA)  # as the trainer scales
         blob = cv2.dnn.blobFromImage(canvas, 1 / 255)  # RGB, as ultralytics feeds it
         output = self._forward(blob)[0]
         if not self._transposed:

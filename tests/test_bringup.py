@@ -93,9 +93,10 @@ def test_show_args_shows_every_argument_with_its_default():
 def test_the_params_file_has_a_section_per_node_of_the_graph():
     params = yaml.safe_load((ROOT / 'ros2_ws/src/ur_rg2_bringup/config/graph.yaml').read_text())
     assert list(params) == ['/**/ur_rg2_sim', '/**/ur_rg2_vision', '/**/ur_rg2_motion',
-                            '/**/ur_rg2_viewer']
+                            '/**/ur_rg2_viewer', '/**/ur_rg2_view3d']
     assert params['/**/ur_rg2_sim']['ros__parameters']['camera_rate'] == 30.0
     assert params['/**/ur_rg2_viewer']['ros__parameters']['port'] == 8080
+    assert params['/**/ur_rg2_view3d']['ros__parameters']['port'] == 8081
 
 
 KNOWN = ['use_sim', 'robot_model', 'gui', 'camera_rate', 'port', 'namespace', 'view3d',

@@ -30,7 +30,8 @@ SIM = 'ur_rg2_sim'
 # The contract's executables; every other console script a package declares is checked too.
 EXECUTABLES = {'ur_rg2_sim': 'sim', 'ur_rg2_teleop': 'keys', 'ur_rg2_vision': 'vision',
                'ur_rg2_motion': 'motion', 'ur_rg2_learning': 'policy',
-               'ur_rg2_bringup': 'graph'}
+               'ur_rg2_bringup': 'graph', 'ur_rg2_tools': 'record',
+               'ur_rg2_hardware': 'rg2_adapter'}
 ARM_JOINTS = ['shoulder_pan_joint', 'shoulder_lift_joint', 'elbow_joint', 'wrist_1_joint',
               'wrist_2_joint', 'wrist_3_joint']
 # The nodes a real robot's graph runs (all but the sim): package, executable, node name, one
@@ -41,6 +42,8 @@ OFF_SIM_NODES = [
     ('ur_rg2_vision', 'viewer', 'ur_rg2_viewer', 'port', ('-p', 'port:=0')),
     ('ur_rg2_learning', 'policy', 'ur_rg2_policy', 'policy_dir', ()),
     ('ur_rg2_teleop', 'keys', 'ur_rg2_teleop', 'step_deg', ()),
+    ('ur_rg2_tools', 'view3d', 'ur_rg2_view3d', 'cloud_step', ('-p', 'port:=0')),
+    ('ur_rg2_hardware', 'rg2_adapter', 'ur_rg2_rg2_adapter', 'goal_timeout', ()),
 ]
 # A sitecustomize that makes the sim and pybullet unimportable (the venv has both).
 HIDE_SIM = """import sys

@@ -26,7 +26,7 @@ from ur_rg2_common.parameters import ParameterSpec, declare_parameters
 from ur_rg2_common.spin import run_node
 from ur_rg2_common.tf_buffer import FrameLookupError, TransformBuffer, transform_point
 from ur_rg2_vision.ros_image import image_to_depth, image_to_rgb
-from ur_rg2_vision.viewer_node import _is_loopback  # the camera viewer's, one rule for both
+from ur_rg2_vision.viewer_web import is_loopback
 
 from ur_rg2_tools.view3d_web import Scene, View3dServer, depth_cloud, finite
 
@@ -82,7 +82,7 @@ class View3dNode(Node):
             self.destroy_node()
             raise OSError(f'cannot serve on {values["address"]} port {values["port"]}: '
                           f'{error}') from error
-        if not _is_loopback(values['address']):
+        if not is_loopback(values['address']):
             self.get_logger().warning(f'serving on non-loopback address {values["address"]}: '
                                       'anyone who can reach it sees the scene')
         self.get_logger().info(f'3D view at {self.url}')

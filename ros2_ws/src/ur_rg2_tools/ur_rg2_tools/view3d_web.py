@@ -180,12 +180,7 @@ def create_app(scene: Scene) -> web.Application:
 class View3dServer(ViewerServer):
     """Serves :func:`create_app` on a thread of its own (the camera viewer's server)."""
 
-    async def _serve(self) -> None:
-        self._runner = web.AppRunner(create_app(self.hub), handler_cancellation=True,
-                                     access_log=None, shutdown_timeout=2.0)
-        await self._runner.setup()
-        await web.TCPSite(self._runner, self.address, self.port).start()
-        self.port = self._runner.addresses[0][1]
+    create_app = staticmethod(create_app)
 
 
 def depth_cloud(depth: np.ndarray, k: Sequence[float], world_from_camera: np.ndarray,

@@ -14,7 +14,6 @@ the learned policy (ur_rg2_learning's ``policy`` node, ``policy/driving``) drive
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-import ipaddress
 import sys
 import time
 
@@ -35,7 +34,13 @@ from ur_rg2_common.spin import run_node
 from ur_rg2_common.tf_buffer import FrameLookupError, TransformBuffer, transform_point
 
 from ur_rg2_vision.ros_image import image_to_rgb
-from ur_rg2_vision.viewer_web import FrameHub, ViewerServer, ball_summary, joint_summary
+from ur_rg2_vision.viewer_web import (
+    FrameHub,
+    ViewerServer,
+    ball_summary,
+    is_loopback,
+    joint_summary,
+)
 
 NODE_NAME = 'ur_rg2_viewer'
 SIM_NODE = 'ur_rg2_sim'
@@ -71,13 +76,6 @@ _PARAMETERS = (
 )
 
 
-def _is_loopback(address: str) -> bool:
-    try:
-        return ipaddress.ip_address(address).is_loopback
-    except ValueError:
-        return address == 'localhost'
-
-
 class ViewerNode(Node):
     """Serves the annotated camera stream and the robot's state over HTTP."""
 
@@ -111,7 +109,7 @@ class ViewerNode(Node):
             self.destroy_node()
             raise OSError(f'cannot serve on {address} port {port}: {error}') from error
 
-        if not _is_loopback(address):
+        if not is_loopback(address):
             self.get_logger().warning(
                 f'serving on non-loopback address {address}: anyone who can reach it sees '
                 'the camera')

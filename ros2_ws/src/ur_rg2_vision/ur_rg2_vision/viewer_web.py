@@ -13,6 +13,7 @@ import asyncio
 from collections import deque
 from collections.abc import Callable, Sequence
 import importlib.resources
+import ipaddress
 import math
 import threading
 import time
@@ -255,6 +256,14 @@ def create_app(hub: FrameHub) -> web.Application:
     app.on_startup.append(_attach)
     app.on_shutdown.append(_close)
     return app
+
+
+def is_loopback(address: str) -> bool:
+    """Return whether ``address`` (an IP address or ``localhost``) is this host only."""
+    try:
+        return ipaddress.ip_address(address).is_loopback
+    except ValueError:
+        return address == 'localhost'
 
 
 class ViewerServer:

@@ -65,6 +65,9 @@ def run_node(make_node: Callable[[], N], args: Optional[list[str]], logger_name:
 
     def on_sigint(signum: int, frame: object) -> None:
         interrupted.append(signum)
+        # A second SIGINT (a terminal's Ctrl-C and launch's own) must not land in a __del__
+        # on the way out, where Python can only print it as 'Exception ignored'.
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
         raise KeyboardInterrupt
 
     signal.signal(signal.SIGINT, on_sigint)

@@ -14,6 +14,7 @@ them).
 from collections.abc import Iterable, Sequence
 import math
 import threading
+import time
 
 import numpy as np
 
@@ -76,12 +77,14 @@ class TransformBuffer:
 
     def __init__(self) -> None:
         self._edges: dict[str, tuple[str, np.ndarray]] = {}
-        self._lock = threading.Lock()
+        # Reentrant, and notified on every change: lookups may wait for a frame to arrive.
+        self._lock = threading.Condition(threading.RLock())
 
     def set_transform(self, parent: str, child: str, transform: np.ndarray) -> None:
         """Store ``parent`` -> ``child`` (4x4: the child's pose in the parent)."""
         with self._lock:
             self._edges[child] = (parent, transform)
+            self._lock.notify_all()
 
     def add_message(self, message) -> int:
         """Store every well-formed transform of a tf2_msgs/TFMessage; return how many not.
@@ -124,8 +127,25 @@ class TransformBuffer:
         with self._lock:
             return set(self._edges) | {parent for parent, _ in self._edges.values()}
 
-    def lookup(self, target: str, source: str) -> np.ndarray:
-        """Return the pose of frame ``source`` in frame ``target`` (tf2's lookupTransform)."""
+    def lookup(self, target: str, source: str, timeout: float = 0.0) -> np.ndarray:
+        """Return the pose of frame ``source`` in frame ``target`` (tf2's lookupTransform).
+
+        With a ``timeout`` (s), wait up to that long for the tree to connect the two frames
+        (a latched /tf_static may arrive after the first request) before raising
+        FrameLookupError.
+        """
+        deadline = time.monotonic() + timeout
+        with self._lock:
+            while True:
+                try:
+                    return self._lookup(target, source)
+                except FrameLookupError:
+                    remaining = deadline - time.monotonic()
+                    if remaining <= 0:
+                        raise
+                    self._lock.wait(remaining)
+
+    def _lookup(self, target: str, source: str) -> np.ndarray:
         target, source = target.lstrip('/'), source.lstrip('/')
         with self._lock:
             known = set(self._edges) | {parent for parent, _ in self._edges.values()}

@@ -44,6 +44,10 @@ def trajectory_goal(times: Sequence[float], positions: Sequence[Sequence[float]]
     return goal
 
 
+# How long a request waits for the latched transforms it needs before it is refused, s.
+FRAME_WAIT_S = 5.0
+
+
 def ball_in_base_link(tree: TransformBuffer, ball: tuple[float, PointStamped] | None,
                       timeout: float) -> np.ndarray:
     """Return the ball's centre in base_link from the latest ``ball/position``.
@@ -57,7 +61,7 @@ def ball_in_base_link(tree: TransformBuffer, ball: tuple[float, PointStamped] | 
                          'view, and is the vision node running?)')
     point = ball[1]
     try:
-        to_base = tree.lookup(BASE_LINK, point.header.frame_id)
+        to_base = tree.lookup(BASE_LINK, point.header.frame_id, timeout=FRAME_WAIT_S)
     except FrameLookupError as error:
         raise ValueError(f'the ball cannot be placed in {BASE_LINK}: {error}') from None
     centre = transform_point(to_base, (point.point.x, point.point.y, point.point.z))

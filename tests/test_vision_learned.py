@@ -23,7 +23,7 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 from ur_rg2_common.camera_pose import optical_rotation
-from ur_rg2_sim.sim_node import IMAGE_QOS
+from ur_rg2_common.contract import IMAGE_QOS
 from ur_rg2_vision import scene_dataset
 from ur_rg2_vision.dataset import COLOR_GROUPS, sphere_box, yolo_label
 from ur_rg2_vision.learned import MODEL_FILE, SETTINGS_FILE, BallModel, ModelError, box_detection

@@ -15,7 +15,7 @@ import numpy as np
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import Image
 from ur_rg2_common.camera_pose import optical_rotation
-from ur_rg2_sim.sim_node import IMAGE_QOS
+from ur_rg2_common.contract import IMAGE_QOS
 from ur_rg2_vision.detector import BallDetector
 from ur_rg2_vision.localize import locate_first
 from ur_rg2_vision.scenes import MIN_VISIBLE, no_balls, sized_balls

@@ -6,9 +6,8 @@ setup(
     name=package_name,
     version='0.1.0',
     packages=find_packages(exclude=['test']),
-    # The trained Reach and Pick policies the policy node runs; the ball detector's network.
-    package_data={package_name: ['policies/reach/*', 'policies/pick/*', 'policies/pick_cloned/*',
-                                'detector_models/*.yaml']},
+    # The trained Reach and Pick policies the policy node runs.
+    package_data={package_name: ['policies/reach/*', 'policies/pick/*', 'policies/pick_cloned/*']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),

@@ -30,6 +30,7 @@ import argparse
 from pathlib import Path
 import shlex
 import sys
+import textwrap
 import time
 from typing import Any
 
@@ -516,7 +517,9 @@ def export(model, record: dict[str, Any], steps: int, seconds: float,
         'grasped_share': record['grasped_share'],
         'train_seconds': round(seconds, 1),
         'hyperparameters': dict(HYPERPARAMETERS, net_arch=record['net'],
-                                actor_lr_share=record['actor_lr_share']),
+                                actor_lr_share=record['actor_lr_share'],
+                                learning_starts=model.learning_starts),
+        'rl_updates': int(model._n_updates),
         'curve': [{'steps': s, 'success': r, 'seconds': round(t, 1)} for s, r, t in curve],
     }
     return Actor(layers, meta)
@@ -541,7 +544,8 @@ def plot_curves(curves: dict[int, list[tuple[int, float, float]]], title: str,
     axes.grid(alpha=0.3)
     if len(curves) > 1:
         axes.legend(fontsize=8)
-    axes.set_title(f'{title}: up to {longest / 60:.1f} min of training', fontsize=9)
+    axes.set_title(textwrap.fill(f'{title}: up to {longest / 60:.1f} min of training', 90),
+                   fontsize=8)
     figure.tight_layout()
     write_atomically(path, lambda f: figure.savefig(f, format='png'))
     pyplot.close(figure)

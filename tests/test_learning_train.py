@@ -222,3 +222,11 @@ def test_evaluate_policy_refuses_a_directory_without_a_policy(tmp_path):
     assert done.returncode == 2
     assert done.stderr.startswith('evaluate_policy: no usable policy in')
     assert len(done.stderr.splitlines()) == 1
+
+
+def test_cloning_only_needs_a_cloning_term():
+    refused = subprocess.run(
+        [str(BIN / 'train_policy'), '--env', PICK_ID, '--timesteps', '10', '--out', '/dev/null',
+         '--demos', '2', '--cloning-only'], capture_output=True, text=True, timeout=120)
+    assert refused.returncode == 2
+    assert '--cloning-only keeps only the cloning term: give --bc' in refused.stderr

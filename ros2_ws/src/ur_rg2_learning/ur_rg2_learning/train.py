@@ -91,6 +91,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument('--no-q-filter', dest='q_filter', action='store_false',
                    help='clone every demonstrated step, not only those the critic rates above '
                    'the actor')
+    p.add_argument('--cloning-only', action='store_true',
+                   help='ablation: the actor learns from the cloning term alone, without the '
+                   "algorithm's -Q term (the critic still learns; needs --bc)")
     p.add_argument('--critic-warmup', type=int, default=0,
                    help='critic updates on the demonstrations before the first step (0)')
     p.add_argument('--grasped-share', type=float, default=0.0,
@@ -119,6 +122,8 @@ def main(argv: list[str] | None = None) -> int:
         p.error(f'--demos and --grasped-share are for {PICK_ID}')
     if (args.bc or args.critic_warmup) and not args.demos:
         p.error('--bc and --critic-warmup train on the demonstrations: give --demos')
+    if args.cloning_only and not args.bc:
+        p.error('--cloning-only keeps only the cloning term: give --bc')
     if not 0.0 <= args.grasped_share <= 1.0:
         p.error('--grasped-share is a share: 0 to 1')
     try:
@@ -200,7 +205,8 @@ def train_seed(config: dict[str, Any], seed: int) -> dict[str, Any]:
                   action_high=env.action_space.high.tolist())
     add_demonstrations(model.replay_buffer, demonstrations)
     if config['bc']:
-        model.cloning = Cloning(model, demonstrations, config['bc'], config['q_filter'])
+        model.cloning = Cloning(model, demonstrations, config['bc'], config['q_filter'],
+                                alone=config['cloning_only'])
     warm_up_critic(model, config['critic_warmup'])
     curve: list[tuple[int, float, float]] = []  # (steps, success rate, wall seconds)
     before_rl = export(model, record, 0, time.monotonic() - started, curve)
@@ -272,6 +278,8 @@ def method(config: dict[str, Any]) -> str:
         words += f" + {config['demos']} scripted demos in the buffer"
     if config['bc']:
         words += f" + {'Q-filtered ' if config['q_filter'] else ''}BC {config['bc']:g}"
+        if config.get('cloning_only'):
+            words += ' alone (no -Q term in the actor updates: an ablation)'
     if config['critic_warmup']:
         words += f", critic warm-up {config['critic_warmup']}"
     if config.get('grasped_share'):
@@ -397,6 +405,8 @@ def with_cloning(algorithm: type, actor_lr_share: float) -> type:
             step = optimizer.step
 
             def step_with_cloning(*args, **kwargs):
+                if self.cloning.alone:
+                    optimizer.zero_grad()
                 self.cloning.backward(batch_size)
                 return step(*args, **kwargs)
 
@@ -452,13 +462,14 @@ class Cloning:
     """
 
     def __init__(self, model, demonstrations: dict[str, np.ndarray], weight: float,
-                 q_filter: bool = True) -> None:
+                 q_filter: bool = True, alone: bool = False) -> None:
         import torch
 
         self._torch = torch
         self.model = model
         self.weight = weight
         self.q_filter = q_filter
+        self.alone = alone  # replace the actor's own gradient instead of adding to it
         device = model.device
         self.actions = torch.as_tensor(demonstrations['action'], device=device)
         self.observations = {key: torch.as_tensor(demonstrations[key], device=device)
@@ -513,6 +524,7 @@ def export(model, record: dict[str, Any], steps: int, seconds: float,
         'cloned_before_rl': 0,  # demonstrations cloned before the first update: none
         'bc': record['bc'],
         'q_filter': record['q_filter'],
+        'cloning_only': record.get('cloning_only', False),
         'critic_warmup': record['critic_warmup'],
         'grasped_share': record['grasped_share'],
         'train_seconds': round(seconds, 1),

@@ -60,6 +60,7 @@ READY = ((_GRAPH, r'ur_rg2_sim\]: simulating'),
          (re.compile(r'^(ros2 run ur_rg2_learning )?policy\b'), r'policy/run'))
 _GRAPH_READY = (r'ur_rg2_sim\]: simulating', r'ur_rg2_motion\]: ready',
                 r'ur_rg2_vision\]: looking for the ball', r'ur_rg2_viewer\]: live view')
+GRAPH_NODES = ('ur_rg2_sim', 'ur_rg2_vision', 'ur_rg2_motion', 'ur_rg2_viewer')
 START_TIMEOUT = 90.0  # s: a graph or a node coming up on a loaded machine
 RUN_TIMEOUT = 120.0  # s: a command that ends by itself
 STOP_TIMEOUT = 60.0  # s: Ctrl-C to exit
@@ -311,6 +312,27 @@ def run_python(block: Block, env: dict[str, str]) -> None:
             process.kill()
 
 
+def daemon_sees_the_graph(env: dict[str, str]) -> None:
+    """Start the ros2 daemon and wait until it lists the graph's nodes and joint_states.
+
+    A user types the page's commands into a shell whose daemon has watched the graph for a
+    while; a daemon started by the first command may not have discovered it yet
+    (docs/troubleshooting.md, python -m bench discovery).
+    """
+    subprocess.run(['ros2', 'daemon', 'start'], env=env, capture_output=True,
+                   timeout=RUN_TIMEOUT, check=False)
+    deadline = time.monotonic() + START_TIMEOUT
+    while True:
+        nodes, topics = (subprocess.run(['ros2', verb, 'list'], env=env, capture_output=True,
+                                        text=True, timeout=RUN_TIMEOUT,
+                                        check=False).stdout.split()
+                         for verb in ('node', 'topic'))
+        if '/joint_states' in topics and {f'/{name}' for name in GRAPH_NODES} <= set(nodes):
+            return
+        assert time.monotonic() < deadline, f'the ros2 daemon saw {nodes} and {topics}'
+        time.sleep(0.5)
+
+
 @pytest.mark.parametrize('page', [page for page in PAGES if any(
     not block.mark for block in page_blocks(page))], ids=lambda page: page.name)
 def test_the_page_s_blocks_run_as_shown(page):
@@ -325,6 +347,7 @@ def test_the_page_s_blocks_run_as_shown(page):
         for command in BESIDE_GRAPH.get(name, ()):
             background.append(Process(command, env))
             background[-1].wait_for([r'policy/run'], START_TIMEOUT)
+        daemon_sees_the_graph(env)
         for block in page_blocks(page):
             if block.mark:
                 continue
@@ -338,6 +361,8 @@ def test_the_page_s_blocks_run_as_shown(page):
     finally:
         for process in background:
             process.kill()
+        subprocess.run(['ros2', 'daemon', 'stop'], env=env, capture_output=True,
+                       timeout=RUN_TIMEOUT, check=False)
 
 
 def test_the_helpers_read_blocks_and_commands_as_a_shell_does():

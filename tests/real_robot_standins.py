@@ -265,6 +265,8 @@ class UrDriver(Node):
         result = FollowJointTrajectory.Result()
         while True:
             time.sleep(0.01)
+            if not self.context.ok():
+                return result  # the test's graph is shut down: end the worker thread
             with self._lock:
                 outcome = goal[3]
                 superseded = self._goal is not goal
@@ -390,6 +392,8 @@ class OnRobotGripper(Node):
         last = None
         while True:
             time.sleep(0.05)
+            if not self.context.ok():
+                return result  # the test's graph is shut down: end the worker thread
             with self._lock:
                 stroke, blocked = self._stroke, abs(self._stroke - self._blocked_at()) < 1e-9
             feedback = ParallelGripperCommand.Feedback()

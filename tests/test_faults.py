@@ -232,7 +232,7 @@ def test_a_burst_of_malformed_messages_leaves_every_node_alive_and_unchanged(ros
         ViewerNode(context=ros_graph.context, parameter_overrides=[Parameter('port', value=0)]))
     watch = Watch(ros_graph)
     wait_for(lambda: len(watch.balls) > 3, TIMEOUT, 'vision to see the ball')
-    wait_for(lambda: motion._urdf is not None and motion._trajectory.server_is_ready(),
+    wait_for(lambda: motion.state.urdf is not None and motion._trajectory.server_is_ready(),
              TIMEOUT, 'the motion node')
     before = watch.arm()
     ball_before = np.mean(watch.balls[-3:], axis=0)
@@ -293,7 +293,7 @@ def test_vision_stopped_during_a_pick_fails_it_with_the_reason_and_the_arm_holds
     vision = start_process(VISION_BIN, ros_graph)
     try:
         wait_for(lambda: len(watch.balls) > 3, TIMEOUT, 'vision to see the ball')
-        wait_for(lambda: motion._urdf is not None and motion._trajectory.server_is_ready(),
+        wait_for(lambda: motion.state.urdf is not None and motion._trajectory.server_is_ready(),
                  TIMEOUT, 'the motion node')
         # Slow moves: the pick is still on its way to the ball when the vision node has gone,
         # however long that takes on a loaded machine.

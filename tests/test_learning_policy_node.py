@@ -76,13 +76,14 @@ def test_policy_run_drives_the_tcp_to_the_ball(ros_graph):
     far.header.frame_id = 'world'
     far.point.x, far.point.y, far.point.z = 1.5, -0.2, RADIUS
     far_timer = probe.create_timer(0.05, lambda: ball.publish(far))
-    wait_for(lambda: policy._ball is not None, TIMEOUT, 'the far ball to reach the policy node')
+    wait_for(lambda: policy.state.ball is not None, TIMEOUT,
+             'the far ball to reach the policy node')
     out = call(run)
     assert not out.success
     assert out.message.startswith('refused: the ball is out of reach'), out.message
     probe.destroy_timer(far_timer)
     probe.create_timer(0.05, publish_ball)
-    wait_for(lambda: policy._ball[1].point.x == BALL[0], TIMEOUT,
+    wait_for(lambda: policy.state.ball.point.x == BALL[0], TIMEOUT,
              'the ball to reach the policy node')
     wait_for(lambda: tree.frames() >= {'world', 'rg2_tcp'}, TIMEOUT, 'the transform tree')
     before = tcp_to_ball_top()
@@ -205,9 +206,8 @@ def test_pick_refuses_a_ball_unseen_or_out_of_reach_and_stops_when_it_is_lost(ro
         return text in console[0]
 
     def ball_seen_at(at) -> bool:
-        seen = policy._ball
-        return seen is not None and np.allclose(
-            (seen[1].point.x, seen[1].point.y, seen[1].point.z), at)
+        seen = policy.state.ball
+        return seen is not None and np.allclose((seen.point.x, seen.point.y, seen.point.z), at)
 
     refused = call(run)
     assert not refused.success and refused.message.startswith('refused: no ball seen')

@@ -70,10 +70,6 @@ class Rig:
         wait_for(lambda: self.motion._trajectory.server_is_ready(), TIMEOUT,
                  'the trajectory action server')
         wait_for(self._tree_ready, TIMEOUT, 'the transform tree')
-        wait_for(self._motion_tree_ready, TIMEOUT, "the motion node's transform tree")
-        # A command before it has the arm's model is refused (and then never repeated).
-        wait_for(lambda: self.motion._urdf is not None, TIMEOUT,
-                 "the motion node's robot_description")
 
     def _on_state(self, msg: JointState) -> None:
         with self._lock:
@@ -84,13 +80,6 @@ class Rig:
         try:
             self.tree.lookup('base_link', 'rg2_tcp')
             self.tree.lookup('base_link', 'camera_color_optical_frame')
-            return True
-        except LookupError:
-            return False
-
-    def _motion_tree_ready(self) -> bool:
-        try:
-            self.motion._tf.lookup('world', 'base_link')
             return True
         except LookupError:
             return False
@@ -149,8 +138,8 @@ class Rig:
         ball.point.x, ball.point.y, ball.point.z = x, y, z
 
         def received():
-            latest = self.motion._ball
-            return latest is not None and (latest[1].point, latest[1].header.frame_id) == (
+            latest = self.motion.state.ball
+            return latest is not None and (latest.point, latest.header.frame_id) == (
                 ball.point, frame)
         self.ball.publish(ball)
         wait_for(received, TIMEOUT, f'the motion node to receive the ball at {(x, y, z)}')

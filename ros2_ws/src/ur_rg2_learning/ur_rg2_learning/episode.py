@@ -1,10 +1,12 @@
 """One policy episode on the live graph, without ROS: what the ``policy`` node observes and sends.
 
-An :class:`Episode` builds each step's observation as the environment builds it (from the
-measured joints, the RG2's opening and the ball the camera sees), decides when the episode
-ends, and turns the actor's action into the step's joint goal (``envs.move_target``), its
-duration (``envs.step_duration``) and, for Pick, a change of the gripper. The node does the
-messaging around it.
+:func:`start_episode` checks that the ball is within reach and plans the move to the
+environment's start pose. An :class:`Episode` builds each step's observation as the
+environment builds it (from the measured joints, the RG2's opening and the ball the camera
+sees), decides when the episode ends, and turns the actor's action into the step's joint goal
+(``envs.move_target``), its duration (``envs.step_duration``: the controller refuses a goal
+too fast rather than slow it down, where the environment's motors only lag) and, for Pick, a
+change of the gripper. The node does the messaging around it.
 """
 
 from __future__ import annotations
@@ -14,25 +16,34 @@ from dataclasses import dataclass
 import time
 
 import numpy as np
-from ur_rg2_motion.kinematics import ArmKinematics
+from ur_rg2_motion.kinematics import ArmKinematics, KinematicsError
+from ur_rg2_motion.planning import Trajectory, plan_joint_move, plan_pick
 
 from ur_rg2_learning import EPISODE_STEPS, PICK_ID, REACH_ID
 from ur_rg2_learning.envs import (
     CONTROL_RATE,
+    LIFT_GOAL,
     LIFT_SUCCESS,
     PICK_GOAL_TOLERANCE,
     REACH_TOLERANCE,
+    START_TCP,
     move_target,
+    pick_goal,
     pick_observation,
     reach_observation,
+    start_joints,
     step_duration,
+    tcp_pose,
 )
+from ur_rg2_learning.scripted import APPROACH_HEIGHT
 
 LOST_STEPS = 30  # Pick steps (3 s of simulation time) a ball not held may go unseen
 # A closed RG2 holds the ball when its fingers stopped this near the ball's diameter (the
 # motion node's grasp check) with the ball this near the TCP.
 GRASP_TOLERANCE = 0.02  # m of opening
 HELD_DISTANCE = 0.03  # m, ball centre to TCP
+START_SPEED_SCALE = 0.4  # share of the joints' velocity limits for the move to the start
+START_TIMEOUT = 30.0  # s for the start move beyond its duration
 
 
 @dataclass(frozen=True)
@@ -152,3 +163,27 @@ class Episode:
             return Outcome(f"{'picked' if lifted else 'missed'} the ball: {state} after "
                            f'{self.step} steps', lifted)
         return pick_observation(tcp, velocity, opening, ball, ball_velocity, self.goal)
+
+
+def start_episode(picks: bool, arm: ArmKinematics, joints: np.ndarray, centre: np.ndarray,
+                  radius: float, velocity_limits: np.ndarray) -> tuple[Episode, Trajectory]:
+    """Return a new episode for the ball at ``centre`` (base_link) and the move to its start.
+
+    The arm goes from ``joints`` to the environment's start pose (START_TCP in the pick
+    posture). ValueError when the ball is out of reach from there: for Pick, when no grasp and
+    lift can be planned; for Reach, when the TCP cannot be put on the ball's top.
+    """
+    start = np.array(START_TCP)
+    start_q = start_joints(arm, start)
+    try:
+        if picks:
+            plan_pick(arm, start_q, centre, APPROACH_HEIGHT, LIFT_GOAL)
+        else:
+            arm.solve(tcp_pose(centre + (0.0, 0.0, radius)), start_q)
+    except KinematicsError as error:
+        raise ValueError(f'the ball is out of reach: {error}') from None
+    trajectory = plan_joint_move(joints, start_q, velocity_limits, START_SPEED_SCALE,
+                                 1.0 / CONTROL_RATE)
+    episode = Episode(picks, start, start_q, pick_goal(centre), radius,
+                      time.monotonic() + trajectory.duration + START_TIMEOUT)
+    return episode, trajectory

@@ -1,90 +1,46 @@
 """ROS 2 node ``ur_rg2_policy``: a trained Reach or Pick policy driving the live graph.
 
-``policy/run`` (std_srvs/Trigger) starts one episode: the arm first goes to the episode's
-start pose (the environment's, ur_rg2_learning.envs.START_TCP, in the pick posture; for Pick
-the RG2 opens), then the policy acts step by step. Its observation is built as the
-environment builds it (ur_rg2_learning.envs.reach_observation / pick_observation): the TCP
-from ``joint_states`` (closed-form forward kinematics of ``robot_description``), the RG2's
-opening from its finger joints, the ball from the latest ``ball/position`` transformed
-through the tree into ``base_link``. Each action moves the TCP target as in the environment
-(ur_rg2_learning.envs.move_target); the joints that reach it go to the sim's
-``joint_trajectory_controller/follow_joint_trajectory`` as a one-point trajectory due one
-control period (0.1 s) later, or later where a joint would be too fast for that
-(ur_rg2_learning.envs.step_duration: the controller refuses a goal too fast rather than slow
-it down, where the environment's motors only lag), and a change of Pick's gripper sign to
-``gripper_controller/gripper_cmd``; the next step starts when the controllers have finished
-them: in step with the simulation, as in training, however fast the sim runs and however
-loaded the machine is. A step whose arm goal is refused or stops short puts the target back
-where the arm is, so that the next step moves on from there. A Reach episode ends when the
-TCP is at the ball's top; a Pick episode when the ball is held at its goal (15 cm above where
-it lay); both after the environment's episode length at the latest, or earlier when the
-camera has lost the ball (Pick: not held and unseen for ``episode.LOST_STEPS`` steps; the arm hides
-it for a few steps of every grasp). ``policy/driving`` (std_msgs/Bool, latched) says whether
-the policy is driving the arm.
+``policy/run`` (std_srvs/Trigger) starts one episode (ur_rg2_learning.episode): the arm goes to
+the environment's start pose, then the policy acts step by step on observations built as the
+environment builds them, from the robot's state (ur_rg2_motion.robot_state) and the latest
+``ball/position``. Each step is a one-point trajectory for
+``joint_trajectory_controller/follow_joint_trajectory`` and, for Pick, a gripper goal; the
+next step starts when the controllers have finished them, in step with the simulation however
+fast it runs. ``policy/driving`` (std_msgs/Bool, latched) says whether the policy drives the arm.
 """
 
 from __future__ import annotations
 
+import math
 import sys
 import threading
 import time
 
 from control_msgs.action import FollowJointTrajectory, GripperCommand
-from geometry_msgs.msg import PointStamped
-import numpy as np
 from rclpy.action import ActionClient
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
-from rclpy.qos import qos_profile_sensor_data
-from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, String
 from std_srvs.srv import Trigger
-from tf2_msgs.msg import TFMessage
 from ur_rg2_common.contract import (
-    ARM_JOINTS,
     GRIPPER_ACTION,
-    GRIPPER_JOINTS,
     LATCHED_QOS,
-    RG2_MAX_FORCE,
     RG2_MAX_OPENING,
-    TF_QOS,
     TRAJECTORY_ACTION,
-    WORLD_FRAME,
 )
 from ur_rg2_common.parameters import ParameterSpec, declare_parameters
 from ur_rg2_common.spin import run_node
-from ur_rg2_common.tf_buffer import FrameLookupError, TransformBuffer
-from ur_rg2_motion.kinematics import (
-    BASE_LINK,
-    ArmKinematics,
-    KinematicsError,
-    arm_on_pedestal,
-    urdf_velocity_limits,
-)
-from ur_rg2_motion.messages import ball_in_base_link, trajectory_goal
-from ur_rg2_motion.planning import plan_joint_move, plan_pick
+from ur_rg2_motion.kinematics import BASE_LINK, ArmKinematics, KinematicsError
+from ur_rg2_motion.messages import FRAME_WAIT_S, gripper_goal, trajectory_goal
+from ur_rg2_motion.robot_state import RobotState, subscribe
 
 from ur_rg2_learning import PICK_ID, REACH_ID
 from ur_rg2_learning.actor import SHIPPED, Actor, PolicyError, shipped_policy
-from ur_rg2_learning.envs import (
-    BALL_RADIUS,
-    CONTROL_RATE,
-    LIFT_GOAL,
-    START_TCP,
-    pick_goal,
-    start_joints,
-    tcp_pose,
-)
-from ur_rg2_learning.episode import Episode, Outcome
-from ur_rg2_learning.scripted import APPROACH_HEIGHT
+from ur_rg2_learning.envs import BALL_RADIUS
+from ur_rg2_learning.episode import Episode, Outcome, start_episode
 
 NODE_NAME = 'ur_rg2_policy'
-_START_SPEED_SCALE = 0.4  # share of the joints' velocity limits for the move to the start
-_START_TIMEOUT = 30.0  # s for the start move beyond its duration
 _STEP_TIMEOUT = 10.0  # s for one step's goal to be answered and done, beyond its duration
-# policy/run waits this long (s) for the latched transforms that place the ball and the floor
-# in base_link: a node started with the graph may be asked before /tf_static reached it.
-_TREE_WAIT = 5.0
 
 _PARAMETERS = (
     ParameterSpec('policy_dir', 'reach', 'The policy to run: a directory written by '
@@ -111,22 +67,10 @@ class PolicyNode(Node):
                               f'{REACH_ID} and {PICK_ID} policies')
         self._picks = self.actor.env_id == PICK_ID
         self._lock = threading.Lock()
-        self._tf = TransformBuffer()
-        self._tree_changed = threading.Condition()
-        self._arm = None
-        self._robot: str | None = None
-        self._velocity_limits: np.ndarray | None = None
-        self._joints: np.ndarray | None = None
-        self._opening: float | None = None
-        self._ball: tuple[float, PointStamped] | None = None
+        self.state = RobotState()
         self._episode: Episode | None = None  # the running episode
 
-        self.create_subscription(String, 'robot_description', self._on_description, LATCHED_QOS)
-        self.create_subscription(TFMessage, '/tf_static', self._on_tf, LATCHED_QOS)
-        self.create_subscription(TFMessage, '/tf', self._on_tf, TF_QOS)
-        self.create_subscription(JointState, 'joint_states', self._on_joint_states,
-                                 qos_profile_sensor_data)
-        self.create_subscription(PointStamped, 'ball/position', self._on_ball, 10)
+        subscribe(self, self.state, self._on_description)
         self._trajectory = ActionClient(self, FollowJointTrajectory, TRAJECTORY_ACTION)
         self._gripper = ActionClient(self, GripperCommand, GRIPPER_ACTION)
         self._driving = self.create_publisher(Bool, 'policy/driving', LATCHED_QOS)
@@ -140,113 +84,46 @@ class PolicyNode(Node):
         self.get_logger().info(f'{self.actor.env_id} policy from {directory}; policy/run '
                                'starts an episode')
 
-    # -- state from the graph -------------------------------------------------------------------
-
-    def _on_tf(self, message: TFMessage) -> None:
-        self._tf.add_message(message)
-        with self._tree_changed:
-            self._tree_changed.notify_all()
-
-    def _wait_for_tree(self) -> None:
-        """Wait up to _TREE_WAIT s for the tree to place the ball's frame and the floor."""
-        with self._lock:
-            ball = self._ball
-        frames = {WORLD_FRAME} | ({ball[1].header.frame_id} if ball is not None else set())
-
-        def connected() -> bool:
-            try:
-                for frame in frames:
-                    self._tf.lookup(BASE_LINK, frame)
-            except FrameLookupError:
-                return False
-            return True
-
-        with self._tree_changed:
-            self._tree_changed.wait_for(connected, _TREE_WAIT)
-
     def _on_description(self, message: String) -> None:
         try:
-            limits = urdf_velocity_limits(message.data)
-        except (KinematicsError, ValueError) as error:
+            self.state.set_description(message.data)
+        except ValueError as error:  # KinematicsError too
             self.get_logger().error(f'robot_description unusable: {error}')
-            return
-        with self._lock:
-            self._robot, self._velocity_limits = message.data, limits
-            self._arm = None  # rebuilt with the pedestal height of the tree
 
-    def _on_joint_states(self, message: JointState) -> None:
-        positions = dict(zip(message.name, message.position))
-        if all(name in positions for name in ARM_JOINTS):
-            joints = np.array([positions[name] for name in ARM_JOINTS])
-            if np.isfinite(joints).all():
-                with self._lock:
-                    self._joints = joints
-        if all(name in positions for name in GRIPPER_JOINTS):
-            opening = sum(positions[name] for name in GRIPPER_JOINTS)
-            if np.isfinite(opening):
-                with self._lock:
-                    self._opening = opening
-
-    def _on_ball(self, message: PointStamped) -> None:
-        with self._lock:
-            self._ball = (time.monotonic(), message)
-
-    def _kinematics(self) -> ArmKinematics:
-        with self._lock:
-            if self._arm is not None:
-                return self._arm
-        if self._velocity_limits is None:
-            raise KinematicsError('invalid', 'no robot_description received yet')
-        try:
-            height = float(self._tf.lookup(WORLD_FRAME, BASE_LINK)[2, 3])
-        except FrameLookupError as error:
-            raise KinematicsError('invalid', f'no floor known yet: {error}') from None
-        arm = arm_on_pedestal(self._robot, height)
-        with self._lock:
-            self._arm = arm
+    def _kinematics(self, floor_wait: float = 0.0) -> ArmKinematics:
+        """Return the arm on its pedestal; KinematicsError while the floor is not known."""
+        arm = self.state.kinematics(floor_wait=floor_wait)
+        if not math.isfinite(arm.floor_z):
+            raise KinematicsError('invalid', 'no floor known yet (no world frame on /tf_static '
+                                  f'after {floor_wait:g} s)')
         return arm
 
-    def _ball_centre(self) -> np.ndarray:
+    def _ball_centre(self):
         """Return the ball's centre in base_link from the latest ball/position (ValueError)."""
-        with self._lock:
-            ball = self._ball
-        return ball_in_base_link(self._tf, ball, self.get_parameter('ball_timeout').value)
+        return self.state.ball_centre(self.get_parameter('ball_timeout').value)
 
     # -- the episode ----------------------------------------------------------------------------
 
     def _on_run(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         response.success = False
-        with self._lock:
-            busy, joints = self._episode is not None, self._joints
+        radius = self.get_parameter('ball_radius').value
         try:
-            if busy:
-                raise ValueError('an episode is already running')
-            if joints is None:
-                raise ValueError('no joint_states received yet (is the sim running?)')
+            with self._lock:
+                if self._episode is not None:
+                    raise ValueError('an episode is already running')
+            joints = self.state.joints()
             clients = ((self._trajectory, TRAJECTORY_ACTION), (self._gripper, GRIPPER_ACTION))
             for client, name in clients[:2 if self._picks else 1]:
                 if not client.server_is_ready():
                     raise ValueError(f'{name} is not available (is the sim running?)')
-            self._wait_for_tree()
-            centre = self._ball_centre()
-            arm = self._kinematics()
-            start = np.array(START_TCP)
-            start_q = start_joints(arm, start)
-            try:
-                if self._picks:
-                    plan_pick(arm, start_q, centre, APPROACH_HEIGHT, LIFT_GOAL)
-                else:
-                    arm.solve(tcp_pose(centre + (0.0, 0.0, self._radius())), start_q)
-            except KinematicsError as error:
-                raise ValueError(f'the ball is out of reach: {error}') from None
-        except (ValueError, KinematicsError) as error:
+            centre = self._ball_centre()  # waits for the ball's frame a bounded moment
+            episode, trajectory = start_episode(
+                self._picks, self._kinematics(floor_wait=FRAME_WAIT_S), joints, centre,
+                radius, self.state.velocity_limits)
+        except ValueError as error:  # KinematicsError too
             response.message = f'refused: {error}'
             self.get_logger().warning(f'policy/run {response.message}')
             return response
-        trajectory = plan_joint_move(joints, start_q, self._velocity_limits,
-                                     _START_SPEED_SCALE, 1.0 / CONTROL_RATE)
-        episode = Episode(self._picks, start, start_q, pick_goal(centre), self._radius(),
-                          time.monotonic() + trajectory.duration + _START_TIMEOUT)
         with self._lock:
             self._episode = episode
         self._driving.publish(Bool(data=True))
@@ -254,14 +131,11 @@ class PolicyNode(Node):
             lambda future: self._on_start_goal(future, episode))
         response.success = True
         what = 'ball' if self._picks else 'ball top'
-        shown = centre if self._picks else centre + (0.0, 0.0, self._radius())
+        shown = centre if self._picks else centre + (0.0, 0.0, radius)
         response.message = (f'episode started: {what} at ({shown[0]:.3f}, {shown[1]:.3f}, '
                             f'{shown[2]:.3f}) m in {BASE_LINK}')
         self.get_logger().info(f'policy/run: {response.message}')
         return response
-
-    def _radius(self) -> float:
-        return self.get_parameter('ball_radius').value
 
     def _on_start_goal(self, future, episode: Episode) -> None:
         handle = future.result()
@@ -287,17 +161,16 @@ class PolicyNode(Node):
         with self._lock:
             if self._episode is not episode:
                 return
-            joints, opening = self._joints, self._opening
         try:
-            arm = self._kinematics()
-            observation = episode.observe(arm, joints, opening, self._ball_centre)
-        except (ValueError, KinematicsError) as error:
+            arm, joints = self._kinematics(), self.state.joints()
+            observation = episode.observe(arm, joints, self.state.opening(), self._ball_centre)
+        except ValueError as error:  # KinematicsError too
             self._end(episode, f'stopped: {error}')
             return
         if isinstance(observation, Outcome):
             self._end(episode, observation.text, reached=observation.reached)
             return
-        step = episode.act(self.actor(observation), arm, joints, self._velocity_limits,
+        step = episode.act(self.actor(observation), arm, joints, self.state.velocity_limits,
                            RG2_MAX_OPENING)
         episode.deadline = time.monotonic() + step.duration + _STEP_TIMEOUT
         episode.pending = 1 + (step.gripper is not None)
@@ -321,10 +194,7 @@ class PolicyNode(Node):
         self._step_done(episode)
 
     def _send_gripper(self, position: float, episode: Episode) -> None:
-        goal = GripperCommand.Goal()
-        goal.command.position = position
-        goal.command.max_effort = RG2_MAX_FORCE
-        self._gripper.send_goal_async(goal).add_done_callback(
+        self._gripper.send_goal_async(gripper_goal(position)).add_done_callback(
             lambda future: self._on_gripper_goal(future, episode))
 
     def _on_gripper_goal(self, future, episode: Episode) -> None:

@@ -13,14 +13,13 @@ import threading
 import time
 
 from action_msgs.msg import GoalStatus
-from control_msgs.action import GripperCommand
+import numpy as np
 from rclpy.action import ActionClient
-from ur_rg2_common.contract import RG2_MAX_FORCE
 
-from ur_rg2_motion.kinematics import KinematicsError
-from ur_rg2_motion.messages import JointStateCache, trajectory_goal
+from ur_rg2_motion.messages import gripper_goal, trajectory_goal
 from ur_rg2_motion.pick import GripResult, PickError
 from ur_rg2_motion.planning import Trajectory
+from ur_rg2_motion.robot_state import RobotState
 
 GOAL_ANSWER_TIMEOUT = 15.0  # s (a loaded machine: one pick in 100 of the bench waited over 5 s)
 GRIPPER_TIMEOUT = 10.0  # s
@@ -37,13 +36,12 @@ REFUSED_HINT = ('is the controller active? On a real UR: the External Control pr
 class ControllerArm:
     """The arm and the RG2 through their controllers: the pick's Arm.
 
-    ``state``: the node's joint states. ``check`` (may raise) runs before each goal is sent,
+    ``state``: the node's robot state. ``check`` (may raise) runs before each goal is sent,
     under ``send_lock``, and after it ends; ``watch`` (may raise PickError) while waiting,
     until ``vision_done``; ``speed_scaling`` returns the driver's slider (percent) or None.
-    ``velocity_limits`` (rad/s, the six joints') is set by the node before a pick.
     """
 
-    def __init__(self, trajectory: ActionClient, gripper: ActionClient, state: JointStateCache,
+    def __init__(self, trajectory: ActionClient, gripper: ActionClient, state: RobotState,
                  send_lock: threading.Lock, check: Callable[[], None],
                  watch: Callable[[], None], vision_done: Callable[[], None],
                  speed_scaling: Callable[[], float | None]) -> None:
@@ -51,14 +49,15 @@ class ControllerArm:
         self._send_lock, self._check, self._watch = send_lock, check, watch
         self._speed_scaling = speed_scaling
         self.vision_done = vision_done
-        self.velocity_limits = None
 
-    def joints(self):
-        """Return the arm joints now (rad); KinematicsError before the first joint_states."""
-        joints = self._state.joints()
-        if joints is None:
-            raise KinematicsError('invalid', 'no joint_states received yet')
-        return joints
+    @property
+    def velocity_limits(self) -> np.ndarray | None:
+        """The six arm joints' velocity limits (rad/s) from robot_description."""
+        return self._state.velocity_limits
+
+    def joints(self) -> np.ndarray:
+        """Return the arm joints now (rad); NotReceivedError before the first joint_states."""
+        return self._state.joints()
 
     def speed(self) -> float:
         """Return the fastest arm joint's speed now (rad/s)."""
@@ -115,12 +114,9 @@ class ControllerArm:
 
     def start_grip(self, opening: float) -> object:
         """Send the gripper toward ``opening`` (m) at full force; return the goal's future."""
-        goal = GripperCommand.Goal()
-        goal.command.position = opening
-        goal.command.max_effort = RG2_MAX_FORCE
         with self._send_lock:
             self._check()
-            return self._gripper.send_goal_async(goal)
+            return self._gripper.send_goal_async(gripper_goal(opening))
 
     def finish_grip(self, future, what: str) -> GripResult:
         """Wait for the gripper goal of ``future`` to end."""

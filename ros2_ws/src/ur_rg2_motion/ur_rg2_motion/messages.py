@@ -1,23 +1,22 @@
 """ROS messages of the motion, without a node: the motion and policy nodes both use them.
 
 :func:`trajectory_goal` is the arm's goal for the trajectory controller (the sim's, or a real
-UR driver's ``scaled_joint_trajectory_controller``); :func:`ball_in_base_link` places the
-latest ``ball/position`` in ``base_link`` through the transform tree; :func:`pose_of` checks
-and converts a ``geometry_msgs/Pose``.
+UR driver's ``scaled_joint_trajectory_controller``), :func:`gripper_goal` the RG2's for the
+gripper controller; :func:`ball_in_base_link` places the latest ``ball/position`` in
+``base_link`` through the transform tree; :func:`pose_of` checks and converts a
+``geometry_msgs/Pose``.
 """
 
 from collections.abc import Sequence
 import math
-import threading
 import time
 
 from builtin_interfaces.msg import Duration
-from control_msgs.action import FollowJointTrajectory
+from control_msgs.action import FollowJointTrajectory, GripperCommand
 from geometry_msgs.msg import PointStamped
 import numpy as np
-from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectoryPoint
-from ur_rg2_common.contract import ARM_JOINTS, GRIPPER_JOINTS
+from ur_rg2_common.contract import ARM_JOINTS, RG2_MAX_FORCE
 from ur_rg2_common.tf_buffer import (
     FrameLookupError,
     TransformBuffer,
@@ -41,6 +40,14 @@ def trajectory_goal(times: Sequence[float], positions: Sequence[Sequence[float]]
         goal.trajectory.points.append(JointTrajectoryPoint(
             positions=[float(p) for p in point],
             time_from_start=Duration(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)))
+    return goal
+
+
+def gripper_goal(opening: float) -> GripperCommand.Goal:
+    """Return the RG2's goal: its fingers ``opening`` m apart, at full force."""
+    goal = GripperCommand.Goal()
+    goal.command.position = float(opening)
+    goal.command.max_effort = RG2_MAX_FORCE
     return goal
 
 
@@ -93,43 +100,3 @@ def pose_of(pose) -> np.ndarray:
     p, q = pose.position, pose.orientation
     return pose_matrix(finite('position', (p.x, p.y, p.z)),
                        unit_quaternion((q.x, q.y, q.z, q.w)))
-
-
-class JointStateCache:
-    """The latest arm joints, their fastest speed and the RG2's opening, from ``joint_states``.
-
-    The arm and the RG2 may come in separate messages (a real cell: the UR driver, and
-    ur_rg2_hardware's ``rg2_adapter`` for OnRobot's driver); each message updates what it has.
-    """
-
-    def __init__(self) -> None:
-        self._lock = threading.Lock()
-        self._joints: np.ndarray | None = None
-        self._speed = 0.0
-        self._opening: float | None = None
-
-    def add(self, message: JointState) -> None:
-        """Take what ``message`` says of the six arm joints and of the RG2's fingers."""
-        positions = dict(zip(message.name, message.position))
-        speeds = dict(zip(message.name, message.velocity))
-        with self._lock:
-            if all(name in positions for name in ARM_JOINTS):
-                self._joints = np.array([positions[name] for name in ARM_JOINTS])
-                self._speed = max(abs(speeds.get(name, 0.0)) for name in ARM_JOINTS)
-            if all(name in positions for name in GRIPPER_JOINTS):
-                self._opening = sum(positions[name] for name in GRIPPER_JOINTS)
-
-    def joints(self) -> np.ndarray | None:
-        """Return the arm joints (rad), None before the first."""
-        with self._lock:
-            return self._joints
-
-    def speed(self) -> float:
-        """Return the fastest arm joint's speed (rad/s)."""
-        with self._lock:
-            return self._speed
-
-    def opening(self) -> float | None:
-        """Return the RG2's opening (m, the sum of its finger joints), None before the first."""
-        with self._lock:
-            return self._opening

@@ -7,58 +7,42 @@ thread, driving the arm through that action and the RG2 through
 ``gripper_controller/gripper_cmd`` (ur_rg2_motion.goals). The robot comes from
 ``robot_description`` (the sim's, or Universal Robots' own with ``tcp_offset``), the frames
 from ``/tf_static`` and ``/tf``, the gripper's opening from its finger joints in any
-``joint_states`` message.
+``joint_states`` message (ur_rg2_motion.robot_state). A tool command that comes before them
+waits for them a bounded moment (ur_rg2_motion.waiting).
 """
 
-import math
 import sys
 import threading
 import time
 
 from control_msgs.action import FollowJointTrajectory, GripperCommand
-from geometry_msgs.msg import PointStamped, PoseStamped, TransformStamped
+from geometry_msgs.msg import PoseStamped, TransformStamped
 import numpy as np
 from rclpy.action import ActionClient
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
-from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, String
 from std_srvs.srv import Trigger
-from tf2_msgs.msg import TFMessage
-from ur_rg2_common.contract import (
-    GRIPPER_ACTION,
-    LATCHED_QOS,
-    TF_QOS,
-    TRAJECTORY_ACTION,
-    WORLD_FRAME,
-)
+from ur_rg2_common.contract import GRIPPER_ACTION, LATCHED_QOS, TRAJECTORY_ACTION
 from ur_rg2_common.parameters import declare_parameters
 from ur_rg2_common.spin import run_node
-from ur_rg2_common.tf_buffer import FrameLookupError, TransformBuffer, pose_matrix
+from ur_rg2_common.tf_buffer import FrameLookupError, pose_matrix
 
 from ur_rg2_motion.goals import ControllerArm
-from ur_rg2_motion.kinematics import (
-    BASE_LINK,
-    ArmKinematics,
-    KinematicsError,
-    arm_on_pedestal,
-    urdf_velocity_limits,
-)
-from ur_rg2_motion.messages import (
-    JointStateCache,
-    ball_in_base_link,
-    finite,
-    pose_of,
-    unit_quaternion,
-)
+from ur_rg2_motion.kinematics import BASE_LINK, ArmKinematics, KinematicsError
+from ur_rg2_motion.messages import FRAME_WAIT_S, finite, pose_of, unit_quaternion
 from ur_rg2_motion.pick import MIN_MOVE_DURATION, PickCancelledError, PickError, run_pick
 from ur_rg2_motion.planning import jog_target, limit_tcp_speed, plan_move
+from ur_rg2_motion.robot_state import NotReceivedError, RobotState, subscribe
 from ur_rg2_motion.settings import PARAMETERS, pick_settings
+from ur_rg2_motion.waiting import WaitingRequests
 
 NODE_NAME = 'ur_rg2_motion'
 # The driver's speed slider (ur_robot_driver's speed_scaling_state_broadcaster), percent.
 SPEED_SCALING_TOPIC = 'speed_scaling_state_broadcaster/speed_scaling'
+RETRY_PERIOD = 0.05  # s between two tries of the tool commands waiting for the graph
+
 
 class MotionNode(Node):
     """TCP moves through the trajectory controller, and the ball pick."""
@@ -67,18 +51,13 @@ class MotionNode(Node):
         super().__init__(NODE_NAME, **kwargs)
         declare_parameters(self, PARAMETERS)
         offset = self.get_parameter('tcp_offset').value
-        self._tcp_offset = list(offset) if any(offset) else None
         # pick_ball waits for the controllers: run it on a worker thread (BlockingGroupExecutor)
         # while everything else, quick, stays on the spinning thread.
         self.blocking_group = ReentrantCallbackGroup()
-        self._tf = TransformBuffer()
+        self.state = RobotState(offset if any(offset) else None)
         self._lock = threading.Lock()
-        self._urdf: str | None = None
-        self._arm: ArmKinematics | None = None
-        self._arm_key: tuple | None = None
-        self._state = JointStateCache()
+        self._ready = False
         self._speed_scaling: float | None = None
-        self._ball: tuple[float, PointStamped] | None = None  # (monotonic receipt, message)
         self._tool_target: np.ndarray | None = None  # the running tool move's target
         # Held from the cancel check to the goal's sending, so that a pick never sends a
         # move after a tool command (which cancels it) has sent its own.
@@ -88,15 +67,18 @@ class MotionNode(Node):
         # Whether the running pick still goes by vision's reading of the ball (until it grips).
         self._pick_needs_vision = False
 
-        self.create_subscription(String, 'robot_description', self._on_description, LATCHED_QOS)
-        self.create_subscription(TFMessage, '/tf_static', self._tf.add_message, LATCHED_QOS)
-        self.create_subscription(TFMessage, '/tf', self._tf.add_message, TF_QOS)
-        self.create_subscription(JointState, 'joint_states', self._state.add,
-                                 qos_profile_sensor_data)
+        self._waiting = WaitingRequests(FRAME_WAIT_S, (FrameLookupError, NotReceivedError),
+                                        self._on_expired)
+        self._retry_timer = self.create_timer(RETRY_PERIOD, self._retry, autostart=False)
+
+        subscribe(self, self.state, self._on_description)
         self.create_subscription(Float64, SPEED_SCALING_TOPIC, self._on_speed_scaling, 10)
-        self.create_subscription(PointStamped, 'ball/position', self._on_ball, 10)
-        self.create_subscription(PoseStamped, 'tool_command', self._on_tool_command, 10)
-        self.create_subscription(TransformStamped, 'tool_jog', self._on_tool_jog, 100)
+        self.create_subscription(
+            PoseStamped, 'tool_command',
+            lambda message: self._submit('tool_command', self._tool_command, message), 10)
+        self.create_subscription(
+            TransformStamped, 'tool_jog',
+            lambda message: self._submit('tool_jog', self._tool_jog, message), 100)
         # Joint moves by others end a pick (the sim preempts the pick's trajectory as well).
         for topic in ('joint_jog', 'joint_command'):
             self.create_subscription(JointState, topic,
@@ -104,7 +86,7 @@ class MotionNode(Node):
         self._trajectory = ActionClient(self, FollowJointTrajectory, TRAJECTORY_ACTION)
         self._gripper = ActionClient(self, GripperCommand, GRIPPER_ACTION)
         self._arm_io = ControllerArm(
-            self._trajectory, self._gripper, self._state, self._send_lock, self._check_pick,
+            self._trajectory, self._gripper, self.state, self._send_lock, self._check_pick,
             self._check_vision, self._vision_done, lambda: self._speed_scaling)
         self._result_pub = self.create_publisher(String, 'pick_ball/result', LATCHED_QOS)
         self.create_service(Trigger, 'pick_ball', self._on_pick,
@@ -114,96 +96,80 @@ class MotionNode(Node):
 
     def _on_description(self, message: String) -> None:
         try:
-            model = ArmKinematics.from_urdf(message.data, tcp_offset=self._tcp_offset).model
+            model = self.state.set_description(message.data)
         except (KinematicsError, ValueError) as error:
             hint = (" (set the motion node's tcp_offset, or add the RG2 to the description)"
                     if 'TCP offset' in str(error) else '')
             self.get_logger().error(f'robot_description unusable: {error}{hint}')
             return
-        with self._lock:
-            first = self._urdf is None
-            self._urdf = message.data
-            self._arm = None  # rebuilt on the next command, with the floor of the tree
-        if first:
+        if not self._ready:
+            self._ready = True
             self.get_logger().info(f'ready: {model.upper()} kinematics from robot_description; '
                                    'tool_command, tool_jog and pick_ball served')
 
     def _on_speed_scaling(self, message: Float64) -> None:
         self._speed_scaling = message.data
 
-    def _on_ball(self, message: PointStamped) -> None:
-        with self._lock:
-            self._ball = (time.monotonic(), message)
-
     def _kinematics(self) -> ArmKinematics:
         """Return the arm model with the floor and pedestal as the tree has them now."""
-        with self._lock:
-            urdf = self._urdf
-        if urdf is None:
-            raise KinematicsError('invalid', 'no robot_description received yet')
-        try:
-            height = float(self._tf.lookup(WORLD_FRAME, BASE_LINK)[2, 3])
-        except FrameLookupError:
-            height = math.inf  # no world frame: no floor known
-        half = self.get_parameter('pedestal_half_width').value
-        clearance = self.get_parameter('floor_clearance').value
-        key = (id(urdf), height, half, clearance)
-        with self._lock:
-            if self._arm is not None and self._arm_key == key:
-                return self._arm
-        arm = arm_on_pedestal(urdf, height, half, clearance, self._tcp_offset)
-        limits = urdf_velocity_limits(urdf)
-        with self._lock:
-            self._arm, self._arm_key = arm, key
-            self._arm_io.velocity_limits = limits
-        return arm
+        return self.state.kinematics(self.get_parameter('pedestal_half_width').value,
+                                     self.get_parameter('floor_clearance').value)
 
     # -- tool_command and tool_jog --------------------------------------------------------------
 
-    def _on_tool_command(self, message: PoseStamped) -> None:
-        try:
-            target = self._tf.lookup(BASE_LINK, message.header.frame_id or BASE_LINK) @ pose_of(
-                message.pose)
-        except (ValueError, FrameLookupError) as error:
-            self.get_logger().warning(f'tool_command rejected: {error}')
-            return
-        self._move_tool(target, 'tool_command')
+    def _submit(self, source: str, handle, message) -> None:
+        """Handle a tool message now, or once what it needs has come (WaitingRequests)."""
+        def attempt() -> None:
+            try:
+                handle(message)
+            except (NotReceivedError, FrameLookupError):
+                raise  # it waits
+            except ValueError as error:  # KinematicsError too: a bad or unreachable target
+                self.get_logger().warning(f'{source} rejected: {error}')
+        self._waiting.submit(source, attempt)
+        if len(self._waiting):
+            self._retry_timer.reset()
 
-    def _on_tool_jog(self, message: TransformStamped) -> None:
+    def _retry(self) -> None:
+        self._waiting.retry()
+        if not len(self._waiting):
+            self._retry_timer.cancel()
+
+    def _on_expired(self, source: str, error: Exception) -> None:
+        self.get_logger().warning(f'{source} rejected: {error} (after waiting '
+                                  f'{self._waiting.timeout:g} s for it; send it again)')
+
+    def _tool_command(self, message: PoseStamped) -> None:
+        pose = pose_of(message.pose)  # ValueError first: a bad pose is refused at once
+        self._move_tool(self.state.tf.lookup(
+            BASE_LINK, message.header.frame_id or BASE_LINK) @ pose, 'tool_command')
+
+    def _tool_jog(self, message: TransformStamped) -> None:
         t, r = message.transform.translation, message.transform.rotation
-        try:
-            step = pose_matrix(finite('translation', (t.x, t.y, t.z)),
-                               unit_quaternion((r.x, r.y, r.z, r.w)))
-            frame = self._tf.lookup(BASE_LINK, message.header.frame_id or BASE_LINK)
-        except (ValueError, FrameLookupError) as error:
-            self.get_logger().warning(f'tool_jog rejected: {error}')
-            return
+        step = pose_matrix(finite('translation', (t.x, t.y, t.z)),
+                           unit_quaternion((r.x, r.y, r.z, r.w)))
+        frame = self.state.tf.lookup(BASE_LINK, message.header.frame_id or BASE_LINK)
         with self._lock:
             start = self._tool_target
-        try:
-            if start is None:
-                start = self._kinematics().tcp_pose(self._arm_io.joints())
-        except KinematicsError as error:
-            self.get_logger().warning(f'tool_jog rejected: {error}')
-            return
+        if start is None:
+            start = self._kinematics().tcp_pose(self.state.joints())
         self._move_tool(jog_target(start, frame, step), 'tool_jog')
 
     def _move_tool(self, target: np.ndarray, source: str) -> None:
-        """Plan the TCP move to ``target`` (base_link) and send it; warn when refused."""
-        try:
-            arm = self._kinematics()
-            joints = self._arm_io.joints()
-            trajectory = limit_tcp_speed(
-                plan_move(arm, joints, target, self._arm_io.velocity_limits,
-                          self.get_parameter('speed_scale').value, MIN_MOVE_DURATION),
-                arm, joints, self.get_parameter('tcp_speed').value)
-        except KinematicsError as error:
-            self.get_logger().warning(f'{source} rejected: {error}')
-            return
+        """Plan the TCP move to ``target`` (base_link) and send it.
+
+        Raises NotReceivedError while the node lacks what it needs, KinematicsError when the
+        move is refused.
+        """
+        arm = self._kinematics()
+        joints = self.state.joints()
         if not self._trajectory.server_is_ready():
-            self.get_logger().warning(f'{source} not executed: {TRAJECTORY_ACTION} is not '
-                                      'available (is the sim or the driver running?)')
-            return
+            raise NotReceivedError(TRAJECTORY_ACTION, f'{TRAJECTORY_ACTION} is not available '
+                                   '(is the sim or the driver running?)')
+        trajectory = limit_tcp_speed(
+            plan_move(arm, joints, target, self.state.velocity_limits,
+                      self.get_parameter('speed_scale').value, MIN_MOVE_DURATION),
+            arm, joints, self.get_parameter('tcp_speed').value)
         with self._send_lock:
             self._cancel_pick(source)
             with self._lock:
@@ -262,10 +228,8 @@ class MotionNode(Node):
         return response
 
     def _ball_in_base_link(self) -> np.ndarray:
-        with self._lock:
-            ball = self._ball
         try:
-            return ball_in_base_link(self._tf, ball, self.get_parameter('ball_timeout').value)
+            return self.state.ball_centre(self.get_parameter('ball_timeout').value)
         except ValueError as error:
             raise PickError(str(error)) from None
 

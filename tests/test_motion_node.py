@@ -240,6 +240,21 @@ def test_bad_targets_are_rejected_with_one_warning_and_no_motion(rig, capfd, wha
     assert np.abs(rig.wait_still() - before).max() < 1e-3
 
 
+def test_a_tool_command_with_no_robot_in_the_graph_is_refused_once_saying_to_resend(
+        ros_graph, capfd):
+    """Held while the transforms may still come, then refused with a retryable reason."""
+    warnings = Warnings(capfd)
+    ros_graph.add(MotionNode(context=ros_graph.context))
+    command = ros_graph.node('probe').create_publisher(PoseStamped, 'tool_command', 10)
+    wait_for(lambda: command.get_subscription_count(), TIMEOUT, 'the motion node to subscribe')
+    message = PoseStamped()
+    message.pose.position.x, message.pose.orientation.w = 0.4, 1.0
+    command.publish(message)
+    new = wait_for(warnings, TIMEOUT, 'the warning')
+    assert new == ["tool_command rejected: unknown frame 'base_link' (not on /tf or /tf_static) "
+                   '(after waiting 5 s for it; send it again)'], new
+
+
 def test_a_nearly_unit_quaternion_is_normalised_and_executed(rig, capfd):
     warnings = Warnings(capfd)
     target = gripper_down((0.4, -0.1, 0.1), 0.0)

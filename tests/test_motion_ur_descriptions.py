@@ -146,3 +146,31 @@ def test_motion_is_ready_on_urs_description_and_a_tool_command_lands_within_1_mm
         return np.linalg.norm(tcp_by_chain(urdf, driver.joints())[:3, 3]
                               - target[:3, 3]) < TOLERANCE
     wait_for(landed, TIMEOUT, f'the TCP within 1 mm of {target[:3, 3]}')
+
+
+def test_a_tool_command_sent_before_the_driver_is_up_is_executed_once_it_is(ros_graph):
+    """A command before the robot is in the graph is held, and runs once it is.
+
+    As in a graph's first seconds: robot_description, /tf_static, joint_states and the
+    controller's action all come after the command.
+    """
+    urdf = ur_description('ur5e')
+    motion = add(ros_graph, MotionNode(
+        context=ros_graph.context, cli_args=['--ros-args', *action_remaps()],
+        parameter_overrides=[Parameter('tcp_offset', value=list(TCP_OFFSET))]))
+    probe = ros_graph.node('probe')
+    command = probe.create_publisher(PoseStamped, 'tool_command', 10)
+    wait_for(lambda: command.get_subscription_count(), TIMEOUT, 'the motion node to subscribe')
+    assert motion.state.urdf is None  # no driver yet: nothing of the robot has come
+    start = tcp_by_chain(urdf, START)
+    target = gripper_down((0.4, -0.15, start[2, 3] - 0.1), 0.4)
+    message = PoseStamped()
+    message.header.frame_id = 'base_link'
+    p, q = message.pose.position, message.pose.orientation
+    p.x, p.y, p.z = (float(v) for v in target[:3, 3])
+    q.x, q.y, q.z, q.w = quaternion_from_matrix(target)
+    command.publish(message)
+    driver = add(ros_graph, UrDriver(urdf, START, context=ros_graph.context))
+    wait_for(lambda: np.linalg.norm(tcp_by_chain(urdf, driver.joints())[:3, 3]
+                                    - target[:3, 3]) < TOLERANCE,
+             TIMEOUT, f'the TCP within 1 mm of {target[:3, 3]}')

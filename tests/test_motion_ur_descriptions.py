@@ -23,7 +23,7 @@ from real_robot_standins import (
     chain_pose,
     ur_description,
 )
-from ur_rg2_common.tf_buffer import quaternion_from_matrix
+from ur_rg2_common.tf_buffer import set_pose
 from ur_rg2_motion import kinematics
 from ur_rg2_motion.kinematics import ArmKinematics, KinematicsError
 from ur_rg2_motion.motion_node import MotionNode
@@ -137,9 +137,7 @@ def test_motion_is_ready_on_urs_description_and_a_tool_command_lands_within_1_mm
     target = gripper_down((reach * 0.8, -reach * 0.3, start[2, 3] - 0.1), 0.4)
     message = PoseStamped()
     message.header.frame_id = 'base_link'
-    p, q = message.pose.position, message.pose.orientation
-    p.x, p.y, p.z = (float(v) for v in target[:3, 3])
-    q.x, q.y, q.z, q.w = quaternion_from_matrix(target)
+    set_pose(message.pose, target)
     command.publish(message)
 
     def landed():
@@ -166,9 +164,7 @@ def test_a_tool_command_sent_before_the_driver_is_up_is_executed_once_it_is(ros_
     target = gripper_down((0.4, -0.15, start[2, 3] - 0.1), 0.4)
     message = PoseStamped()
     message.header.frame_id = 'base_link'
-    p, q = message.pose.position, message.pose.orientation
-    p.x, p.y, p.z = (float(v) for v in target[:3, 3])
-    q.x, q.y, q.z, q.w = quaternion_from_matrix(target)
+    set_pose(message.pose, target)
     command.publish(message)
     driver = add(ros_graph, UrDriver(urdf, START, context=ros_graph.context))
     wait_for(lambda: np.linalg.norm(tcp_by_chain(urdf, driver.joints())[:3, 3]

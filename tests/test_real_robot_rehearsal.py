@@ -33,7 +33,7 @@ from real_robot_standins import (
     ur_description,
 )
 from std_srvs.srv import Trigger
-from ur_rg2_common.tf_buffer import quaternion_from_matrix
+from ur_rg2_common.tf_buffer import set_pose
 from ur_rg2_motion.planning import gripper_down
 import yaml
 
@@ -148,9 +148,7 @@ def test_tool_command_and_jog_land_within_1_mm_by_the_chains_kinematics(cell):
     target = gripper_down((0.4, 0.1, 0.25), 0.3)
     message = PoseStamped()
     message.header.frame_id = 'base_link'
-    p, q = message.pose.position, message.pose.orientation
-    p.x, p.y, p.z = (float(v) for v in target[:3, 3])
-    q.x, q.y, q.z, q.w = quaternion_from_matrix(target)
+    set_pose(message.pose, target)
     command.publish(message)
     cell.wait_tcp(target)
     cell.wait_tcp(target, 0.1 * TOLERANCE)  # settled: the jog starts from here

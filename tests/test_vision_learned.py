@@ -29,7 +29,7 @@ from ur_rg2_vision.dataset import COLOR_GROUPS, sphere_box, yolo_label
 from ur_rg2_vision.learned import MODEL_FILE, SETTINGS_FILE, BallModel, ModelError, box_detection
 from ur_rg2_vision.localize import locate_ball
 from ur_rg2_vision.ros_image import rgb_to_image
-from ur_rg2_vision.scenes import detector_scenes, hard_scenes
+from ur_rg2_vision.scenes import detector_scenes, hard_scenes, plain_to_the_eye
 from ur_rg2_vision.vision_node import VisionNode
 
 BIN = Path(sys.executable).parent
@@ -193,6 +193,13 @@ def test_the_exported_decoding_gives_back_the_box_of_the_training_targets():
     best = rows[0, :, rows[0, 4].argmax()]
     assert np.allclose(best[:4], (56.0, 42.0, 32.0, 24.0), atol=1e-3) and best[4] > 0.99
     assert rows[1, 4].max() < 0.01  # no ball: no peak over any threshold
+
+
+def test_a_ball_is_plain_to_the_eye_only_off_both_floor_colours():
+    assert plain_to_the_eye([0.2], [0.5, 0.9])
+    assert not plain_to_the_eye([0.2], [0.5, 0.3])  # one floor colour within 0.15 of it
+    assert plain_to_the_eye([0.4, 0.95], [0.5, 0.45])  # a pattern: one of its colours is
+    assert not plain_to_the_eye([0.4, 0.55], [0.5, 0.45])
 
 
 def test_detector_scenes_label_balls_of_every_colour_group():

@@ -296,6 +296,14 @@ def pattern_texture(rng: np.random.Generator, kind: str) -> np.ndarray:
     return np.where(mask[..., None], first, second).astype(np.uint8)
 
 
+CONTRAST = 0.15  # a ball's value (HSV) at least this far from its floor's: plain to the eye
+
+
+def plain_to_the_eye(ball: Sequence[float], floor: Sequence[float]) -> bool:
+    """Return whether one of a ball's colour values (0-1) is :data:`CONTRAST` off each floor's."""
+    return any(all(abs(b - f) >= CONTRAST for f in floor) for b in ball)
+
+
 @dataclass
 class LabelledShot:
     """A :class:`Shot` with its colour group and label box (u0, v0, u1, v1; None: no ball)."""
@@ -334,7 +342,8 @@ def detector_scenes(count: int, seed: int = 0, ball_share: float = 0.88,
     camera pose (as ``dataset --any-camera``; a fifth near the sim's own camera), a floor of
     two random colours and tile size under a random light, the arm in a random pose half of
     the time, 0-6 objects that are not balls (cubes, boxes, flat discs; a third in the ball's
-    colour or pattern), and in ``ball_share`` of them one ball of a random radius on the floor:
+    colour or pattern), and in ``ball_share`` of them one ball of a random radius on the floor,
+    plain to the eye on both floor colours (:func:`plain_to_the_eye`):
     mostly wholly in view, some cut by the image border, some partly hidden behind a box. The
     label is the box of the projected sphere clipped to the image (None: no ball in view).
     """
@@ -352,11 +361,25 @@ def detector_scenes(count: int, seed: int = 0, ball_share: float = 0.88,
                 target = np.asarray(default.look_at) + np.append(rng.uniform(-0.2, 0.2, 2), 0)
             else:
                 position, target = (np.asarray(p) for p in any_camera_pose(rng, (0.3, 0.9)))
-            floor = np.array(colorsys.hsv_to_rgb(rng.uniform(0, 1), rng.uniform(0, 0.8),
-                                                 rng.uniform(0.15, 0.97))) * 255
-            other = (floor * rng.uniform(0.75, 0.95) if rng.uniform() < 0.7 else
-                     np.array(colorsys.hsv_to_rgb(rng.uniform(0, 1), rng.uniform(0, 0.8),
-                                                  rng.uniform(0.15, 0.97))) * 255)
+            # The ball first: the floor is drawn again until the ball is plain to the eye on
+            # both its colours (a dark ball on a dark floor was a label no one could see).
+            texture = None
+            if group == 'patterned':
+                color = (1.0, 1.0, 1.0, 1.0)
+                surface = pattern_texture(rng, PATTERNS[int(rng.integers(len(PATTERNS)))])
+                values = np.unique(surface.reshape(-1, 3), axis=0).max(axis=1) / 255
+                texture = textures.load(surface)
+            else:
+                color = group_color(rng, group)
+                values = np.array([max(color[:3])])
+            while True:
+                floor = np.array(colorsys.hsv_to_rgb(rng.uniform(0, 1), rng.uniform(0, 0.8),
+                                                     rng.uniform(0.15, 0.97))) * 255
+                other = (floor * rng.uniform(0.75, 0.95) if rng.uniform() < 0.7 else
+                         np.array(colorsys.hsv_to_rgb(rng.uniform(0, 1), rng.uniform(0, 0.8),
+                                                      rng.uniform(0.15, 0.97))) * 255)
+                if plain_to_the_eye(values, (floor.max() / 255, other.max() / 255)):
+                    break
             light = rng.normal(size=3)
             light[2] = abs(light[2]) + 0.3
             config = CameraConfig(position=tuple(position), look_at=tuple(target),
@@ -370,13 +393,6 @@ def detector_scenes(count: int, seed: int = 0, ball_share: float = 0.88,
             else:
                 world.place_robot([0.0] * 6)
             radius = float(np.exp(rng.uniform(*np.log(radii))))
-            texture = None
-            if group == 'patterned':
-                color = (1.0, 1.0, 1.0, 1.0)
-                texture = textures.load(pattern_texture(rng, PATTERNS[int(
-                    rng.integers(len(PATTERNS)))]))
-            else:
-                color = group_color(rng, group)
             point = None
             if rng.uniform() < ball_share:
                 cut = rng.uniform() < 0.12

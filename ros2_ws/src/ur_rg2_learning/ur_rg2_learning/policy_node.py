@@ -120,12 +120,14 @@ class PolicyNode(Node):
             episode, trajectory = start_episode(
                 self._picks, self._kinematics(floor_wait=FRAME_WAIT_S), joints, centre,
                 radius, self.state.velocity_limits)
+            with self._lock:  # a second policy/run may have started one meanwhile
+                if self._episode is not None:
+                    raise ValueError('an episode is already running')
+                self._episode = episode
         except ValueError as error:  # KinematicsError too
             response.message = f'refused: {error}'
             self.get_logger().warning(f'policy/run {response.message}')
             return response
-        with self._lock:
-            self._episode = episode
         self._driving.publish(Bool(data=True))
         self._send(trajectory.times, trajectory.positions).add_done_callback(
             lambda future: self._on_start_goal(future, episode))

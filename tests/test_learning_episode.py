@@ -6,7 +6,7 @@ import pytest
 from ur_rg2_common.contract import RG2_MAX_OPENING
 from ur_rg2_learning import EPISODE_STEPS, PICK_ID
 from ur_rg2_learning.envs import BALL_RADIUS, START_TCP, pick_goal, start_joints
-from ur_rg2_learning.episode import LOST_STEPS, Episode, Outcome
+from ur_rg2_learning.episode import LOST_STEPS, Episode, Outcome, start_episode
 
 BALL = np.array([0.45, -0.2, -0.2 + BALL_RADIUS])  # base_link, on the floor
 
@@ -75,3 +75,17 @@ def test_a_held_ball_moves_with_the_tcp_and_an_unseen_one_ends_the_episode(arm):
         assert np.allclose(observation['achieved_goal'], BALL)
     with pytest.raises(ValueError, match='no longer seen'):
         episode.observe(arm, joints, RG2_MAX_OPENING, unseen)
+
+
+@pytest.mark.parametrize('picks', [False, True])
+def test_an_episode_starts_with_a_move_to_the_start_pose_unless_the_ball_is_out_of_reach(
+        arm, picks):
+    now = start_joints(arm, np.array(START_TCP)) + 0.2  # the arm somewhere else
+    limits = np.full(6, 3.0)
+    episode, trajectory = start_episode(picks, arm, now, BALL, BALL_RADIUS, limits)
+    assert np.allclose(arm.tcp_pose(trajectory.positions[-1])[:3, 3], START_TCP, atol=1e-6)
+    assert np.allclose(episode.target, START_TCP) and episode.step == 0
+    assert np.allclose(episode.goal, pick_goal(BALL))
+    far = np.array([1.5, -0.2, BALL[2]])
+    with pytest.raises(ValueError, match='the ball is out of reach'):
+        start_episode(picks, arm, now, far, BALL_RADIUS, limits)

@@ -21,7 +21,7 @@ from ur_rg2_motion.pick import GripResult, PickError
 from ur_rg2_motion.planning import Trajectory
 from ur_rg2_motion.robot_state import RobotState
 
-GOAL_ANSWER_TIMEOUT = 15.0  # s (a loaded machine: one pick in 100 of the bench waited over 5 s)
+GOAL_ANSWER_TIMEOUT = 15.0  # s: a loaded machine may answer a goal seconds late
 GRIPPER_TIMEOUT = 10.0  # s
 # A move is given up after MOTION_FACTOR x its duration + MOTION_SLACK: simulation time may run
 # slower than the wall clock (a loaded machine), a real arm slower than planned (the slider).

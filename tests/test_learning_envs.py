@@ -251,3 +251,34 @@ def test_a_share_of_episodes_start_grasped():
     finally:
         env.close()
     assert 3 <= sum(held) <= 17
+
+
+def test_an_over_ball_start_has_the_open_fingers_over_the_ball_on_the_floor(make):
+    env = make(PICK_ID)
+    for seed in range(3):
+        observation, info = env.reset(seed=seed, options={'over_ball': True})
+        tcp, ball = observation['observation'][0:3], observation['achieved_goal']
+        assert ball[2] == pytest.approx(BALL_Z, abs=0.002)  # lying on the floor
+        assert np.linalg.norm(ball[:2] - tcp[:2]) < 0.02
+        assert 0.0 < tcp[2] - ball[2] < 0.1
+        assert observation['observation'][6] > 0.1  # open
+        assert not info['is_success']
+    # From there the scripted pick closes, lifts and holds it.
+    for _ in range(60):
+        observation, _, _, _, info = env.step(pick_action(observation))
+    assert info['is_success']
+
+
+def test_shares_of_episodes_start_grasped_and_over_the_ball():
+    env = gym.make(PICK_ID, grasped_share=0.3, over_ball_share=0.4)
+    starts = []
+    try:
+        for seed in range(30):
+            observation = env.reset(seed=seed)[0]
+            tcp, ball = observation['observation'][0:3], observation['achieved_goal']
+            held = env.unwrapped.world.gripper_holds_object()
+            starts.append('grasped' if held else
+                          'over' if np.linalg.norm(ball[:2] - tcp[:2]) < 0.02 else 'free')
+    finally:
+        env.close()
+    assert all(3 <= starts.count(kind) <= 20 for kind in ('grasped', 'over', 'free')), starts

@@ -55,6 +55,10 @@ GRIPPER_TIMEOUT = 1.5  # s: the RG2 closes its full 110 mm in under 1 s
 # node's pick does (the scripted demonstrator's grasp, and the grasped starts').
 GRASP_HEIGHT = 0.003  # m
 GRASP_GAP = 0.002  # m: a grasped start's fingers close from this far apart round the ball
+# An over-ball start puts the open TCP up to this far above the grasp height (and up to
+# OVER_BALL_JITTER off the ball's axis): the last part of the demonstrator's approach.
+OVER_BALL_HEIGHT = 0.08  # m
+OVER_BALL_JITTER = 0.01  # m
 NEAR_BALL = 0.15  # m, ball centre to TCP: nearer, Pick steps the physics finely (a grasp)
 
 
@@ -321,9 +325,11 @@ class PickEnv(UrRg2Env):
     def _sizes(self) -> tuple[int, int]:
         return 16, 3
 
-    def __init__(self, robot_model: str = 'ur5', grasped_share: float = 0.0) -> None:
+    def __init__(self, robot_model: str = 'ur5', grasped_share: float = 0.0,
+                 over_ball_share: float = 0.0) -> None:
         super().__init__(robot_model)
         self._settings['grasped_share'] = self.grasped_share = grasped_share
+        self._settings['over_ball_share'] = self.over_ball_share = over_ball_share
         self._cubics = {n: np.arange(1, n + 1) / n for n in (self.substeps, self.free_substeps)}
         self._rate_substeps = self.substeps  # the world's physics rate, in substeps per step
         limits = [self.world.limits[name] for name in ARM_JOINTS]
@@ -341,16 +347,31 @@ class PickEnv(UrRg2Env):
 
         ``grasped_share`` of the episodes (none with ``options``) start with the ball between
         the closed fingers, somewhere between the floor and the goal above where it lay
-        (Fetch's trick: the lift is then met early in training). Option ``grasped`` (bool)
-        chooses by hand.
+        (Fetch's trick: the lift is then met early in training), and ``over_ball_share`` with
+        the open fingers round or over the ball lying on the floor (the grasp is then met
+        early). Options ``grasped`` and ``over_ball`` (bool) choose by hand.
         """
         observation, info = super().reset(seed=seed, options=options)
-        grasped = (options or {}).get(
-            'grasped', not options and self.np_random.uniform() < self.grasped_share)
-        if grasped:
+        options = options or {}
+        draw = None if options else self.np_random.uniform()
+        if options.get('grasped', draw is not None and draw < self.grasped_share):
             self._start_grasped()
             observation, info = self._observe(), {'is_success': self._is_success()}
+        elif options.get('over_ball', draw is not None
+                         and draw < self.grasped_share + self.over_ball_share):
+            self._start_over_ball()
+            observation, info = self._observe(), {'is_success': self._is_success()}
         return observation, info
+
+    def _start_over_ball(self) -> None:
+        """Put the open TCP 0 to OVER_BALL_HEIGHT above the grasp height over the ball."""
+        rng = self.np_random
+        tcp = self._ball + (0.0, 0.0, GRASP_HEIGHT + rng.uniform(0.0, OVER_BALL_HEIGHT))
+        tcp[:2] += rng.uniform(-OVER_BALL_JITTER, OVER_BALL_JITTER, 2)
+        joints = start_joints(self.arm, tcp)
+        self.world.set_arm_positions(dict(zip(ARM_JOINTS, joints.tolist())))
+        self._joints, self._target = joints, tcp
+        self._tcp = np.array(self.world.link_pose()[0]) - self._base
 
     def _start_grasped(self) -> None:
         """Put the ball (and the TCP over its centre) up to LIFT_GOAL up, the RG2 closed on it."""

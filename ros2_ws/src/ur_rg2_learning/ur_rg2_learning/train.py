@@ -7,8 +7,11 @@ actor update (Nair et al. 2018: the squared distance to the demonstrated actions
 critic rates them above the actor's own, weighted W times the batch's mean |Q| as TD3+BC),
 ``--critic-warmup N`` trains the critic N updates on the demonstrations before the actor
 moves, ``--grasped-share S`` starts that share of the training episodes with the ball already
-between the fingers (Fetch's trick; evaluation episodes never). Inputs are standardised with
-the demonstrations' (or a few random episodes') mean and deviation, fixed for the run.
+between the fingers (Fetch's trick) and ``--over-ball-share S`` with the open fingers round
+or over it (evaluation episodes never start either way). ``--clip-return`` clips the critic's
+targets to the returns Pick's rewards allow and ``--action-l2 W`` penalises the actor's moves
+(both as the HER baselines do). Inputs are standardised with the demonstrations' (or a few
+random episodes') mean and deviation, fixed for the run.
 
 ``--seed N`` trains one seed in this process; ``--seeds A B ...`` trains each as a Ray task
 (a local Ray with ``--num-cpus`` by default, an existing cluster with ``--address``) and writes
@@ -99,6 +102,15 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument('--grasped-share', type=float, default=0.0,
                    help=f'{PICK_ID} only: share of training episodes that start with the ball '
                    'between the fingers (0)')
+    p.add_argument('--over-ball-share', type=float, default=0.0,
+                   help=f'{PICK_ID} only: share of training episodes that start with the open '
+                   'fingers round or over the ball (0)')
+    p.add_argument('--clip-return', action='store_true',
+                   help=f"{PICK_ID} only: clip the critic's targets to the returns its rewards "
+                   '(-1 or 0) allow, as the HER baselines do')
+    p.add_argument('--action-l2', type=float, default=0.0,
+                   help="weight of a penalty on the actor's squared moves (0; the HER "
+                   'baselines use 1)')
     p.add_argument('--net', type=int, nargs='+', default=HYPERPARAMETERS['net_arch'],
                    help='hidden layer sizes of actor and critic (%(default)s)')
     p.add_argument('--actor-lr-share', type=float, default=HYPERPARAMETERS['actor_lr_share'],
@@ -118,14 +130,19 @@ def main(argv: list[str] | None = None) -> int:
             args.demos, args.bc, args.critic_warmup, args.minutes) < 0:
         p.error('--timesteps and --eval-episodes must be positive; --demos, --bc, '
                 '--critic-warmup, --minutes and --final-episodes not negative')
-    if (args.demos or args.grasped_share) and args.env != PICK_ID:
-        p.error(f'--demos and --grasped-share are for {PICK_ID}')
+    if (args.demos or args.grasped_share or args.over_ball_share
+            or args.clip_return) and args.env != PICK_ID:
+        p.error(f'--demos, --grasped-share, --over-ball-share and --clip-return are for '
+                f'{PICK_ID}')
     if (args.bc or args.critic_warmup) and not args.demos:
         p.error('--bc and --critic-warmup train on the demonstrations: give --demos')
     if args.cloning_only and not args.bc:
         p.error('--cloning-only keeps only the cloning term: give --bc')
-    if not 0.0 <= args.grasped_share <= 1.0:
-        p.error('--grasped-share is a share: 0 to 1')
+    if not (0.0 <= args.grasped_share and 0.0 <= args.over_ball_share
+            and args.grasped_share + args.over_ball_share <= 1.0):
+        p.error('--grasped-share and --over-ball-share are shares: 0 to 1, together too')
+    if args.action_l2 < 0:
+        p.error('--action-l2 must not be negative')
     try:
         import stable_baselines3  # noqa: F401
         import torch  # noqa: F401
@@ -178,14 +195,19 @@ def train_seed(config: dict[str, Any], seed: int) -> dict[str, Any]:
     # threads wait on each other whenever the machine is busy (the environment, other
     # processes): a 256x256 layer took 18 ms instead of 1.6 ms on the loaded 2-core machine.
     torch.set_num_threads(1)
-    make_kwargs = ({'grasped_share': config['grasped_share']} if env_id == PICK_ID else {})
+    make_kwargs = ({'grasped_share': config['grasped_share'],
+                    'over_ball_share': config.get('over_ball_share', 0.0)}
+                   if env_id == PICK_ID else {})
     env = gym.make(env_id, **make_kwargs)
     demonstrations = scripted_demonstrations(env_id, config['demos'])
     mean, std = input_scaling(env_id, demonstrations)
     size = env.action_space.shape[0]
     h = HYPERPARAMETERS
     h = dict(h, net_arch=config['net'], actor_lr_share=config['actor_lr_share'])
-    algorithm = with_cloning({'ddpg': DDPG, 'td3': TD3}[config['algo']], h['actor_lr_share'])
+    # Pick's rewards are -1 or 0 each step: its returns lie in [-1 / (1 - gamma), 0].
+    q_bounds = (-1.0 / (1.0 - h['gamma']), 0.0) if config.get('clip_return') else None
+    algorithm = with_cloning({'ddpg': DDPG, 'td3': TD3}[config['algo']], h['actor_lr_share'],
+                             q_bounds, config.get('action_l2', 0.0))
     model = algorithm(
         'MultiInputPolicy', env, seed=seed, learning_rate=h['learning_rate'],
         buffer_size=min(h['buffer_size'], timesteps + len(demonstrations.get('action', []))),
@@ -207,7 +229,7 @@ def train_seed(config: dict[str, Any], seed: int) -> dict[str, Any]:
     if config['bc']:
         model.cloning = Cloning(model, demonstrations, config['bc'], config['q_filter'],
                                 alone=config['cloning_only'])
-    warm_up_critic(model, config['critic_warmup'])
+    warm_up_critic(model, config['critic_warmup'], q_bounds)
     curve: list[tuple[int, float, float]] = []  # (steps, success rate, wall seconds)
     before_rl = export(model, record, 0, time.monotonic() - started, curve)
     best: dict[str, Any] = {}
@@ -220,8 +242,10 @@ def train_seed(config: dict[str, Any], seed: int) -> dict[str, Any]:
             # longest); the run's result is the final actor, not this one.
             best.update(actor=actor, steps=steps, success=rate)
         curve.append((steps, rate, time.monotonic() - started))
+        cloned = (f'  cloned {model.cloning.share:4.2f}' if config['bc'] and config['q_filter']
+                  else '')
         print(f'{env_id} {config["algo"]} seed {seed}: {steps:>8d}/{timesteps} steps  '
-              f'success {rate:4.2f}  {time.monotonic() - started:6.0f} s', flush=True)
+              f'success {rate:4.2f}  {time.monotonic() - started:6.0f} s{cloned}', flush=True)
 
     class Steps(BaseCallback):
         def _on_step(self) -> bool:
@@ -284,6 +308,12 @@ def method(config: dict[str, Any]) -> str:
         words += f", critic warm-up {config['critic_warmup']}"
     if config.get('grasped_share'):
         words += f", {config['grasped_share']:g} of episodes start grasped"
+    if config.get('over_ball_share'):
+        words += f", {config['over_ball_share']:g} start over the ball"
+    if config.get('clip_return'):
+        words += ', returns clipped'
+    if config.get('action_l2'):
+        words += f", action L2 {config['action_l2']:g}"
     return words
 
 
@@ -381,13 +411,17 @@ def standardising_extractor() -> type:
     return StandardisingExtractor
 
 
-def with_cloning(algorithm: type, actor_lr_share: float) -> type:
-    """Return a subclass of a Stable-Baselines3 TD3-family class with cloning and a slow actor.
+def with_cloning(algorithm: type, actor_lr_share: float,
+                 q_bounds: tuple[float, float] | None = None, action_l2: float = 0.0) -> type:
+    """Return a subclass of a Stable-Baselines3 TD3-family class with its own update.
 
-    Its actor updates minimise the algorithm's actor loss plus ``model.cloning``'s loss (the
-    cloning gradient is added to the actor's before each step of its optimiser); the actor's
-    learning rate is ``actor_lr_share`` of the critic's.
+    The update is the algorithm's (clipped double Q where there are twin critics, target
+    policy smoothing as configured, delayed actor updates) plus: the critic's targets clipped
+    to ``q_bounds`` (the returns the rewards allow, as the HER baselines clip them), an
+    ``action_l2`` penalty on the actor's moves, ``model.cloning``'s term in the actor loss,
+    and the actor's learning rate ``actor_lr_share`` of the critic's.
     """
+    from stable_baselines3.common.utils import polyak_update
 
     class WithCloning(algorithm):
         cloning: Cloning | None = None
@@ -398,23 +432,31 @@ def with_cloning(algorithm: type, actor_lr_share: float) -> type:
                 group['lr'] = self.lr_schedule(self._current_progress_remaining) * actor_lr_share
 
         def train(self, gradient_steps: int, batch_size: int = 100) -> None:
-            if self.cloning is None:
-                super().train(gradient_steps, batch_size)
-                return
-            optimizer = self.actor.optimizer
-            step = optimizer.step
+            self.policy.set_training_mode(True)
+            self._update_learning_rate([self.actor.optimizer, self.critic.optimizer])
+            for _ in range(gradient_steps):
+                self._n_updates += 1
+                data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)
+                update_critic(self, data, q_bounds)
+                if self._n_updates % self.policy_delay == 0:
+                    self.update_actor(data, batch_size)
+                    polyak_update(self.critic.parameters(), self.critic_target.parameters(),
+                                  self.tau)
+                    polyak_update(self.actor.parameters(), self.actor_target.parameters(),
+                                  self.tau)
 
-            def step_with_cloning(*args, **kwargs):
-                if self.cloning.alone:
-                    optimizer.zero_grad()
-                self.cloning.backward(batch_size)
-                return step(*args, **kwargs)
-
-            optimizer.step = step_with_cloning
-            try:
-                super().train(gradient_steps, batch_size)
-            finally:
-                del optimizer.step
+        def update_actor(self, data, batch_size: int) -> None:
+            actions = self.actor(data.observations)
+            loss = actions.new_zeros(())
+            if self.cloning is None or not self.cloning.alone:
+                loss = loss - self.critic.q1_forward(data.observations, actions).mean()
+            if action_l2:
+                loss = loss + action_l2 * (actions[:, :3] ** 2).mean()
+            if self.cloning is not None:
+                loss = loss + self.cloning.loss(batch_size)
+            self.actor.optimizer.zero_grad()
+            loss.backward()
+            self.actor.optimizer.step()
 
         def _excluded_save_params(self) -> list[str]:
             return [*super()._excluded_save_params(), 'cloning']
@@ -423,30 +465,39 @@ def with_cloning(algorithm: type, actor_lr_share: float) -> type:
     return WithCloning
 
 
-def warm_up_critic(model, updates: int) -> None:
-    """Train the critic ``updates`` times on the replay buffer (the demonstrations) alone.
-
-    The TD3-family critic update (clipped double Q where there are two critics, target
-    smoothing as configured), with the actor fixed, and the critic's target following.
-    """
-    from stable_baselines3.common.utils import polyak_update
+def update_critic(model, data, q_bounds: tuple[float, float] | None = None) -> None:
+    """One TD3-family critic update on a replay batch, targets clipped to ``q_bounds``."""
     import torch
     from torch.nn import functional
 
+    with torch.no_grad():
+        noise = (data.actions.clone().normal_(0, model.target_policy_noise)
+                 .clamp(-model.target_noise_clip, model.target_noise_clip))
+        following = (model.actor_target(data.next_observations) + noise).clamp(-1, 1)
+        next_q = torch.cat(model.critic_target(data.next_observations, following), dim=1)
+        next_q, _ = torch.min(next_q, dim=1, keepdim=True)
+        discounts = data.discounts if data.discounts is not None else model.gamma
+        target = data.rewards + (1 - data.dones) * discounts * next_q
+        if q_bounds is not None:
+            target = target.clamp(*q_bounds)
+    current = model.critic(data.observations, data.actions)
+    loss = sum(functional.mse_loss(q, target) for q in current)
+    model.critic.optimizer.zero_grad()
+    loss.backward()
+    model.critic.optimizer.step()
+
+
+def warm_up_critic(model, updates: int, q_bounds: tuple[float, float] | None = None) -> None:
+    """Train the critic ``updates`` times on the replay buffer (the demonstrations) alone.
+
+    The critic update of :func:`with_cloning`'s class, with the actor fixed and the critic's
+    target following.
+    """
+    from stable_baselines3.common.utils import polyak_update
+
     for _ in range(updates):
-        data = model.replay_buffer.sample(model.batch_size, env=model._vec_normalize_env)
-        with torch.no_grad():
-            noise = (data.actions.clone().normal_(0, model.target_policy_noise)
-                     .clamp(-model.target_noise_clip, model.target_noise_clip))
-            following = (model.actor_target(data.next_observations) + noise).clamp(-1, 1)
-            next_q = torch.cat(model.critic_target(data.next_observations, following), dim=1)
-            next_q, _ = torch.min(next_q, dim=1, keepdim=True)
-            target = data.rewards + (1 - data.dones) * model.gamma * next_q
-        current = model.critic(data.observations, data.actions)
-        loss = sum(functional.mse_loss(q, target) for q in current)
-        model.critic.optimizer.zero_grad()
-        loss.backward()
-        model.critic.optimizer.step()
+        update_critic(model, model.replay_buffer.sample(model.batch_size,
+                                                        env=model._vec_normalize_env), q_bounds)
         polyak_update(model.critic.parameters(), model.critic_target.parameters(), model.tau)
 
 
@@ -454,11 +505,12 @@ class Cloning:
     """Behaviour cloning of demonstrations into a TD3-family actor (Nair et al., 2018).
 
     Each update draws a batch of demonstrated steps; the loss is the squared distance from the
-    actor's actions to the demonstrated ones, on the steps where the critic values the
+    actor's actions to the demonstrated ones, on the steps where the critics value the
     demonstrated action above the actor's (the Q-filter, so that the actor may outgrow a
-    demonstrator the critic finds worse), times ``weight`` and the batch's mean |Q| (as
-    TD3+BC, Fujimoto and Gu 2021, balances it against the actor loss -Q, whatever the scale
-    of the returns).
+    demonstrator the critic finds worse; the twin critics' minimum on both sides, so that an
+    action the critics have not seen is not rated up by one of them), times ``weight`` and the
+    batch's mean |Q| (as TD3+BC, Fujimoto and Gu 2021, balances it against the actor loss -Q,
+    whatever the scale of the returns).
     """
 
     def __init__(self, model, demonstrations: dict[str, np.ndarray], weight: float,
@@ -469,15 +521,16 @@ class Cloning:
         self.model = model
         self.weight = weight
         self.q_filter = q_filter
-        self.alone = alone  # replace the actor's own gradient instead of adding to it
+        self.alone = alone  # the actor loss is this term alone (an ablation)
+        self.share = 1.0  # the share of demonstrated steps the last filter let through
         device = model.device
         self.actions = torch.as_tensor(demonstrations['action'], device=device)
         self.observations = {key: torch.as_tensor(demonstrations[key], device=device)
                              for key in model.observation_space.spaces}
         self._rng = np.random.default_rng(model.seed)
 
-    def backward(self, batch_size: int) -> float:
-        """Add the gradient of the cloning loss on a batch to the actor's; return the loss."""
+    def loss(self, batch_size: int):
+        """Return the cloning loss on a batch of demonstrated steps (a torch scalar)."""
         torch = self._torch
         model = self.model
         rows = torch.as_tensor(self._rng.integers(0, len(self.actions), batch_size))
@@ -486,13 +539,14 @@ class Cloning:
         actions = model.actor(observations)
         error = ((actions - demonstrated) ** 2).sum(dim=1)
         with torch.no_grad():
-            q_demonstrated = model.critic.q1_forward(observations, demonstrated)
-            q_actor = model.critic.q1_forward(observations, actions)
-            better = (q_demonstrated > q_actor).float().squeeze(1)
+            q_demonstrated = torch.cat(model.critic(observations, demonstrated), dim=1).amin(1)
+            q_actor = torch.cat(model.critic(observations, actions), dim=1).amin(1)
+            better = (q_demonstrated > q_actor).float()
             scale = self.weight * q_actor.abs().mean()
-        loss = scale * (error * better if self.q_filter else error).mean()
-        loss.backward()
-        return loss.item()
+        if self.q_filter:
+            self.share = better.mean().item()
+            error = error * better
+        return scale * error.mean()
 
 
 def export(model, record: dict[str, Any], steps: int, seconds: float,
@@ -527,6 +581,9 @@ def export(model, record: dict[str, Any], steps: int, seconds: float,
         'cloning_only': record.get('cloning_only', False),
         'critic_warmup': record['critic_warmup'],
         'grasped_share': record['grasped_share'],
+        'over_ball_share': record.get('over_ball_share', 0.0),
+        'clip_return': record.get('clip_return', False),
+        'action_l2': record.get('action_l2', 0.0),
         'train_seconds': round(seconds, 1),
         'hyperparameters': dict(HYPERPARAMETERS, net_arch=record['net'],
                                 actor_lr_share=record['actor_lr_share'],

@@ -87,6 +87,12 @@ def test_short_training_exports_a_model_evaluate_reads_and_vision_serves(tmp_pat
                         lines[pipeline + 1]), lines
     groups = [x.split(':')[0].strip() for x in lines[2:pipeline]]
     assert groups and set(groups) <= set(COLOR_GROUPS), lines
+    swept = subprocess.run(
+        [str(BIN / 'evaluate_detector'), '--model', str(model), '--data', str(data),
+         '--thresholds', '0.2,0.4'], capture_output=True, text=True, timeout=120)
+    assert swept.returncode == 0, swept.stderr
+    assert [re.fullmatch(f'  0\\.[24]: {line} \\| {line}, \\d+ false balls, .*', x) is not None
+            for x in swept.stdout.splitlines()[1:]] == [True, True], swept.stdout
     # The node runs it: every frame fed comes back annotated on ball/image.
     ros_graph.add(VisionNode(context=ros_graph.context, parameter_overrides=[
         Parameter('detector', value='learned'), Parameter('model_dir', value=str(model)),

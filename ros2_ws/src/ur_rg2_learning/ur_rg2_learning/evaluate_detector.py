@@ -9,6 +9,8 @@ that the depth confirms as a sphere gives the 3D centre): right when that centre
 ball's radius of the true one. Each overall and per colour group (saturated, pastel, white,
 grey, dark, patterned); the pipeline and the groups need the depth and meta files that
 ``scripts/detector-data`` (:mod:`ur_rg2_vision.scene_dataset`) writes beside the images.
+``--thresholds T1,T2,...`` instead prints both overall at each of these score thresholds: to
+choose the node's threshold on a validation split, not on the held-out one.
 """
 
 from __future__ import annotations
@@ -222,7 +224,17 @@ def main(argv: list[str] | None = None) -> int:
                         'default, red balls) for comparison')
     parser.add_argument('--min-radius-px', type=float, default=DEFAULT_MIN_RADIUS_PX,
                         help="the vision node's min_radius_px")
+    parser.add_argument('--thresholds', default='', metavar='T1,T2,...',
+                        help="the learned model at each of these score thresholds instead of "
+                        "its own: one line per threshold, the network alone and the node's "
+                        'pipeline overall')
     args = parser.parse_args(argv)
+    try:
+        thresholds = [float(t) for t in args.thresholds.split(',') if t.strip()]
+    except ValueError:
+        parser.error('--thresholds takes numbers between 0 and 1, comma-separated')
+    if not all(0 < t < 1 for t in thresholds) or (thresholds and args.detector != 'learned'):
+        parser.error('--thresholds takes numbers between 0 and 1, for the learned detector')
     try:
         pairs = split_images(args.data, args.split)
     except (OSError, KeyError, TypeError, yaml.YAMLError) as error:
@@ -243,6 +255,13 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         boxes = model.boxes
         detector = LearnedBallDetector(model, args.min_radius_px)
+    if thresholds:
+        print(f'threshold: network alone | node pipeline ({args.split} split)')
+        for threshold in thresholds:
+            model.confidence = threshold
+            print(f'  {threshold:g}: {evaluate(boxes, pairs).line()} | '
+                  f'{evaluate_pipeline(detector, pairs, {}).line()}', flush=True)
+        return 0
     groups: dict[str, Scores] = {}
     print(f'network alone ({args.detector}, at its threshold):')
     print(f'  all: {evaluate(boxes, pairs, groups).line()}')

@@ -12,10 +12,14 @@ from conftest import wait_for
 from geometry_msgs.msg import PointStamped
 import pytest
 from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import QoSProfile, qos_profile_sensor_data
 from sensor_msgs.msg import Image
+from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 from test_bringup import ROOT, become_terminal_session_leader, open_terminal, running
+from ur_rg2_common.contract import LATCHED_QOS
 import yaml
 
 # The graph's nodes: launch's process name and the ROS node name; keys beside them.
@@ -23,6 +27,9 @@ NODES = {'sim': 'ur_rg2_sim', 'vision': 'ur_rg2_vision', 'motion': 'ur_rg2_motio
          'viewer': 'ur_rg2_viewer'}
 KEYS = 'ur_rg2_teleop'
 PARAMS_FILE = ROOT / 'ros2_ws/src/ur_rg2_bringup/config/graph.yaml'
+# In the Pick policy's region and the camera's view, off where the ball starts (the sim moves
+# the ball only when ball_position changes).
+EPISODE_BALL = [0.4, -0.2, 0.03]
 _STARTED = re.compile(r'\[INFO\] \[(\w+)-\d+\]: process started with pid \[(\d+)\]')
 
 
@@ -117,10 +124,49 @@ def pick(controller: int, log_path: Path, positions: list) -> int:
         wait_for(lambda seen=seen: len(positions) > seen, 30.0, 'the next ball position')
 
 
+def place_ball(probe: Node, position: list[float]) -> None:
+    """Move the ball to ``position`` (world frame) through the sim's ``ball_position``."""
+    sim = AsyncParameterClient(probe, NODES['sim'])
+    assert sim.wait_for_services(timeout_sec=30.0)
+    future = sim.set_parameters([Parameter('ball_position', value=position)])
+    wait_for(future.done, 30.0, 'ball_position set')
+    assert all(result.successful for result in future.result().results), future.result()
+
+
+def policy_episode(probe: Node, env: dict[str, str], log_path: Path) -> None:
+    """Run one episode of the shipped Pick policy from a policy node beside the graph."""
+    driving: list[bool] = []
+    probe.create_subscription(Bool, 'policy/driving', lambda message: driving.append(
+        message.data), LATCHED_QOS)
+    run_episode = probe.create_client(Trigger, 'policy/run')
+    with log_path.open('w') as log:
+        policy = subprocess.Popen(
+            ['ros2', 'run', 'ur_rg2_learning', 'policy', '--ros-args', '-p', 'policy_dir:=pick'],
+            stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True)
+    try:
+        wait_for(lambda: run_episode.service_is_ready() or policy.poll() is not None, 60.0,
+                 'the policy node')
+        assert policy.poll() is None, log_path.read_text()
+        future = run_episode.call_async(Trigger.Request())
+        wait_for(future.done, 30.0, 'policy/run')
+        assert future.result().success, future.result().message
+        wait_for(lambda: True in driving and driving[-1] is False, 120.0, 'the episode ended')
+    finally:
+        # Ctrl-C in its terminal: ros2 run and the node both get SIGINT.
+        os.killpg(policy.pid, signal.SIGINT)
+        try:
+            policy.wait(timeout=30)
+        finally:
+            policy.kill()
+
+
 @pytest.mark.parametrize('quit_key', [b'p', b'\x03'], ids=['pick-then-p', 'ctrl-c'])
 def test_in_a_terminal_keys_runs_in_the_foreground_and_quitting_stops_all(
         ros_graph, tmp_path, quit_key):
-    """The terminal shows keys' lines only; with p, after a pick (g), whose goals end quietly."""
+    """The terminal shows keys' lines only; with p, after a pick (g) and a policy episode.
+
+    Their goals end quietly: the nodes' routine lines go to the log file.
+    """
     probe = ros_graph.node('probe')
     positions: list[PointStamped] = []
     probe.create_subscription(PointStamped, 'ball/position', positions.append,
@@ -148,6 +194,14 @@ def test_in_a_terminal_keys_runs_in_the_foreground_and_quitting_stops_all(
                 wait_for(lambda: 'ur_rg2_motion]: ready:' in log_file.read_text(), 60.0,
                          'the motion node ready')
                 picked = pick(controller, log_path, positions)
+                # The arm home (l), the ball back where it started, in view.
+                os.write(controller, b'l')
+                wait_for(lambda: '/reset: done' in log_path.read_text(), 60.0, 'the reset')
+                place_ball(probe, EPISODE_BALL)
+                seen = len(positions)  # frames from before the move may still come
+                wait_for(lambda: len(positions) > seen + 6, 30.0, 'the ball seen at its place')
+                before_episode = len(log_path.read_text().splitlines())
+                policy_episode(probe, ros_graph.env, tmp_path / 'policy.log')
             os.write(controller, quit_key)
             assert run.wait(timeout=20) == 0, log_path.read_text()
         finally:
@@ -169,8 +223,12 @@ def test_in_a_terminal_keys_runs_in_the_foreground_and_quitting_stops_all(
         after = screen.splitlines()[picked:]
         assert any(line.startswith('/pick_ball: done: picked the ball') for line in after), (
             screen)
-        assert all(line.startswith(('/pick_ball: ', 'joint mode | ', 'bringup: graph stopped'))
-                   for line in after), screen
+        assert all(line.startswith(('/pick_ball: ', '/reset: done', 'joint mode | ',
+                                    'bringup: graph stopped')) for line in after), screen
+        # The policy episode, driven from outside the keys terminal, adds none of its lines.
+        during = screen.splitlines()[before_episode:]
+        assert all(line.startswith(('joint mode | ', 'bringup: graph stopped'))
+                   for line in during), screen
     else:
         assert not re.search(r'^\[(sim|vision|motion|viewer)-\d+\]', screen, re.MULTILINE), (
             screen)

@@ -1,6 +1,7 @@
 """The robot state the motion and policy nodes keep, and requests that wait for it (no node)."""
 
 import math
+import threading
 
 from geometry_msgs.msg import PointStamped, TransformStamped
 import numpy as np
@@ -145,3 +146,25 @@ def test_a_request_still_waiting_when_its_time_is_up_is_given_up_with_the_reason
     for _ in range(3):
         requests.submit('tool_jog', never)
     assert len(requests) == 2 and 'more than 2 requests waiting' in str(expired[-1][1])
+
+
+def test_a_request_off_the_executor_thread_waits_a_bounded_moment_for_the_joints(urdf):
+    state = RobotState()
+    with pytest.raises(NotReceivedError, match='no joint_states received yet'):
+        state.joints(wait=0.05)
+    asked = threading.Event()
+
+    def publish_later() -> None:
+        asked.wait(10.0)
+        state.add_joint_state(joint_state(ARM_JOINTS, range(6)))
+        state.set_description(urdf)
+        state.add_static(tf_message('world', 'base_link', PEDESTAL))
+
+    publisher = threading.Thread(target=publish_later)
+    publisher.start()
+    try:
+        asked.set()
+        assert np.allclose(state.joints(wait=30.0), range(6))
+        assert state.kinematics(wait=30.0).floor_z == pytest.approx(-PEDESTAL)
+    finally:
+        publisher.join(10.0)

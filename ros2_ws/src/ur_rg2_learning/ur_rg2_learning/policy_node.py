@@ -90,12 +90,11 @@ class PolicyNode(Node):
         except ValueError as error:  # KinematicsError too
             self.get_logger().error(f'robot_description unusable: {error}')
 
-    def _kinematics(self, floor_wait: float = 0.0) -> ArmKinematics:
+    def _kinematics(self, wait: float = 0.0) -> ArmKinematics:
         """Return the arm on its pedestal; KinematicsError while the floor is not known."""
-        arm = self.state.kinematics(floor_wait=floor_wait)
+        arm = self.state.kinematics(wait=wait)
         if not math.isfinite(arm.floor_z):
-            raise KinematicsError('invalid', 'no floor known yet (no world frame on /tf_static '
-                                  f'after {floor_wait:g} s)')
+            raise KinematicsError('invalid', 'no floor known (no world frame on /tf_static)')
         return arm
 
     def _ball_centre(self):
@@ -111,14 +110,14 @@ class PolicyNode(Node):
             with self._lock:
                 if self._episode is not None:
                     raise ValueError('an episode is already running')
-            joints = self.state.joints()
+            joints = self.state.joints(wait=FRAME_WAIT_S)
             clients = ((self._trajectory, TRAJECTORY_ACTION), (self._gripper, GRIPPER_ACTION))
             for client, name in clients[:2 if self._picks else 1]:
                 if not client.server_is_ready():
                     raise ValueError(f'{name} is not available (is the sim running?)')
             centre = self._ball_centre()  # waits for the ball's frame a bounded moment
             episode, trajectory = start_episode(
-                self._picks, self._kinematics(floor_wait=FRAME_WAIT_S), joints, centre,
+                self._picks, self._kinematics(wait=FRAME_WAIT_S), joints, centre,
                 radius, self.state.velocity_limits)
             with self._lock:  # a second policy/run may have started one meanwhile
                 if self._episode is not None:

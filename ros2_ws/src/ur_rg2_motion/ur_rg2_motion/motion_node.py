@@ -235,7 +235,10 @@ class MotionNode(Node):
 
     def _pick(self, ball: np.ndarray) -> float:
         self._pick_needs_vision = True
-        arm = self._kinematics()
+        # On a worker thread: what a pick needs of the graph may be waited for.
+        arm = self.state.kinematics(self.get_parameter('pedestal_half_width').value,
+                                    self.get_parameter('floor_clearance').value, FRAME_WAIT_S)
+        self.state.joints(FRAME_WAIT_S)
         for client, name in ((self._trajectory, TRAJECTORY_ACTION),
                              (self._gripper, GRIPPER_ACTION)):
             if not client.server_is_ready():

@@ -58,7 +58,9 @@ class RobotState:
     def __init__(self, tcp_offset: Sequence[float] | None = None) -> None:
         self.tf = TransformBuffer()
         self._tcp_offset = list(tcp_offset) if tcp_offset is not None else None
-        self._lock = threading.Lock()
+        # Notified when robot_description, /tf_static or the arm joints come: requests may
+        # wait for them.
+        self._lock = threading.Condition()
         self._urdf: str | None = None
         self._velocity_limits: np.ndarray | None = None
         self._arm: tuple[tuple, ArmKinematics] | None = None  # (what it was built from, arm)
@@ -79,6 +81,7 @@ class RobotState:
         limits = urdf_velocity_limits(urdf)
         with self._lock:
             self._urdf, self._velocity_limits = urdf, limits
+            self._lock.notify_all()
         return model
 
     def add_joint_state(self, message: JointState) -> None:
@@ -92,6 +95,7 @@ class RobotState:
                 with self._lock:
                     self._joints = joints
                     self._speed = speed if math.isfinite(speed) else math.inf
+                    self._lock.notify_all()
         if all(name in positions for name in GRIPPER_JOINTS):
             opening = float(sum(positions[name] for name in GRIPPER_JOINTS))
             if math.isfinite(opening):
@@ -103,6 +107,7 @@ class RobotState:
         self.tf.add_message(message)
         with self._lock:
             self._static = True
+            self._lock.notify_all()
 
     def add_ball(self, message: PointStamped) -> None:
         """Take a ``ball/position`` message as the latest sighting."""
@@ -129,9 +134,13 @@ class RobotState:
         with self._lock:
             return None if self._ball is None else self._ball[1]
 
-    def joints(self) -> np.ndarray:
-        """Return the arm joints (rad); NotReceivedError before the first joint_states."""
+    def joints(self, wait: float = 0.0) -> np.ndarray:
+        """Return the arm joints (rad).
+
+        NotReceivedError when no joint_states has come, after waiting up to ``wait`` s for one.
+        """
         with self._lock:
+            self._lock.wait_for(lambda: self._joints is not None, wait)
             joints = self._joints
         if joints is None:
             raise NotReceivedError('joint_states')
@@ -158,21 +167,21 @@ class RobotState:
         return ball_in_base_link(self.tf, ball, max_age)
 
     def kinematics(self, pedestal_half_width: float = PEDESTAL_HALF_WIDTH,
-                   clearance: float = FLOOR_CLEARANCE, floor_wait: float = 0.0
-                   ) -> ArmKinematics:
+                   clearance: float = FLOOR_CLEARANCE, wait: float = 0.0) -> ArmKinematics:
         """Return the arm model with the floor and pedestal where the tree has them now.
 
-        ``floor_wait``: s to wait for the tree to place ``world`` (the floor) below base_link;
-        without it the arm has no floor (``floor_z`` -inf: a real cell without ``world``).
-        NotReceivedError before the first robot_description and the first /tf_static (the
-        arm's links may come on /tf before the latched ``world`` -> ``base_link`` does).
+        The floor is ``world`` in the tree; without it the arm has no floor (``floor_z`` -inf:
+        a real cell). NotReceivedError without a robot_description, or before the first
+        /tf_static (the arm's links may come on /tf before the latched ``world`` ->
+        ``base_link`` does), after waiting up to ``wait`` s for them.
         """
         with self._lock:
-            urdf, static = self._urdf, self._static  # static: before the lookup
+            self._lock.wait_for(lambda: self._urdf is not None and self._static, wait)
+            urdf, static = self._urdf, self._static
         if urdf is None:
             raise NotReceivedError('robot_description')
         try:
-            height = float(self.tf.lookup(WORLD_FRAME, BASE_LINK, timeout=floor_wait)[2, 3])
+            height = float(self.tf.lookup(WORLD_FRAME, BASE_LINK)[2, 3])
         except FrameLookupError:
             if not static:
                 raise NotReceivedError('/tf_static') from None

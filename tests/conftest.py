@@ -1,10 +1,13 @@
 """Shared fixtures: one rclpy Context per test, on its own DDS domain, spun in the background."""
 
+from collections import deque
 from collections.abc import Callable, Iterator, Sequence
+import fcntl
 import itertools
 import math
 import os
 from pathlib import Path
+import tempfile
 import threading
 import time
 
@@ -26,13 +29,33 @@ from ur_rg2_sim.world import SimWorld, WorldConfig  # noqa: E402
 # The TCP's orientation with the gripper pointing straight down at the floor.
 GRIPPER_DOWN = pybullet.getQuaternionFromEuler([math.pi, 0, 0])
 
-# Fast DDS supports domain ids 0-232; spread concurrent pytest runs by pid.
+# Fast DDS supports domain ids 0-232; spread concurrent pytest runs by pid. Each id in use is
+# held as a lock file, so that concurrent runs on this machine never share one: a test that
+# met another run's graph on its domain received its robot_description and transforms.
 _domain_ids = itertools.count((os.getpid() * 37) % 200)
+_DOMAIN_LOCKS = Path(tempfile.gettempdir()) / 'ur_rg2_test_domains'
+_HELD_DOMAINS = 8  # the ids of the last few tests this process holds; older ones are freed
+_held_domains: deque = deque()  # (domain id, its open lock file)
 
 
 def next_domain_id() -> int:
-    """Return a domain id no other test of this run uses (and unlikely for another run)."""
-    return 1 + next(_domain_ids) % 230
+    """Return a domain id no other test of this run or of a concurrent run holds."""
+    _DOMAIN_LOCKS.mkdir(exist_ok=True)
+    for _ in range(230):
+        domain = 1 + next(_domain_ids) % 230
+        if any(domain == held for held, _ in _held_domains):
+            continue
+        lock = open(_DOMAIN_LOCKS / f'{domain}.lock', 'w')  # noqa: SIM115 - held until freed
+        try:
+            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:  # another run's
+            lock.close()
+            continue
+        _held_domains.append((domain, lock))
+        while len(_held_domains) > _HELD_DOMAINS:
+            _held_domains.popleft()[1].close()
+        return domain
+    raise RuntimeError(f'every ROS domain id is held by another test run ({_DOMAIN_LOCKS})')
 
 
 def wait_for(predicate: Callable[[], object], timeout: float, what: str,

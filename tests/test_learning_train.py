@@ -229,6 +229,20 @@ def test_cloning_moves_the_actor_toward_the_demonstrated_actions(pick_model):
     assert error() < 0.7 * start
 
 
+def test_a_fading_cloning_term_falls_to_nothing(pick_model):
+    from ur_rg2_learning.train import Cloning
+
+    model, demonstrations = pick_model
+    cloning = Cloning(model, demonstrations, weight=1.0, q_filter=False, fade=100)
+    try:
+        model.num_timesteps = 50
+        assert cloning.loss(64).item() > 0.0
+        model.num_timesteps = 100
+        assert cloning.loss(64).item() == 0.0
+    finally:
+        model.num_timesteps = 0
+
+
 def test_a_short_pick_run_records_what_trained_it(tmp_path):
     out = tmp_path / 'pick'
     trained = subprocess.run(

@@ -20,15 +20,15 @@ from ur_rg2_learning.train import plot_curves, summary, train_seed, write_result
 def run_seeds(config: dict[str, Any], seeds: list[int], out: Path, num_cpus: int | None,
               address: str | None) -> int:
     """Train ``seeds`` as Ray tasks; write each, the table and the picture; return 0."""
-    import ray
-
-    # Every seed's curve lines, not one of several alike (Ray's default).
+    # Set before Ray is imported, which reads them. Every seed's curve lines, not one of
+    # several alike (Ray's default).
     os.environ.setdefault('RAY_DEDUP_LOGS', '0')
     os.environ.setdefault('RAY_USAGE_STATS_ENABLED', '0')  # nothing sent anywhere
     # A local Ray's workers run at the command's priority (Ray's default lowers them by 15,
     # below everything else on the machine: a loaded 2-core machine then starves the seeds).
     # Run the command under `nice` to yield.
     os.environ.setdefault('RAY_worker_niceness', '0')
+    import ray
 
     if address:
         ray.init(address=address, include_dashboard=False, log_to_driver=True)

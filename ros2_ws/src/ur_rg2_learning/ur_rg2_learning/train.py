@@ -91,6 +91,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument('--bc', type=float, default=0.0,
                    help='weight of the behaviour-cloning term in the actor updates (0: none; '
                    'needs --demos)')
+    p.add_argument('--bc-fade', type=int, default=0,
+                   help='environment steps over which the cloning weight falls linearly to 0 '
+                   '(0: it stays); after them the actor learns from the critic alone')
     p.add_argument('--no-q-filter', dest='q_filter', action='store_false',
                    help='clone every demonstrated step, not only those the critic rates above '
                    'the actor')
@@ -127,7 +130,7 @@ def main(argv: list[str] | None = None) -> int:
     p = parser()
     args = p.parse_args(argv)
     if args.timesteps < 1 or args.eval_episodes < 1 or args.final_episodes < 0 or min(
-            args.demos, args.bc, args.critic_warmup, args.minutes) < 0:
+            args.demos, args.bc, args.critic_warmup, args.minutes, args.bc_fade) < 0:
         p.error('--timesteps and --eval-episodes must be positive; --demos, --bc, '
                 '--critic-warmup, --minutes and --final-episodes not negative')
     if (args.demos or args.grasped_share or args.over_ball_share
@@ -228,7 +231,7 @@ def train_seed(config: dict[str, Any], seed: int) -> dict[str, Any]:
     add_demonstrations(model.replay_buffer, demonstrations)
     if config['bc']:
         model.cloning = Cloning(model, demonstrations, config['bc'], config['q_filter'],
-                                alone=config['cloning_only'])
+                                alone=config['cloning_only'], fade=config.get('bc_fade', 0))
     warm_up_critic(model, config['critic_warmup'], q_bounds)
     curve: list[tuple[int, float, float]] = []  # (steps, success rate, wall seconds)
     before_rl = export(model, record, 0, time.monotonic() - started, curve)
@@ -302,6 +305,8 @@ def method(config: dict[str, Any]) -> str:
         words += f" + {config['demos']} scripted demos in the buffer"
     if config['bc']:
         words += f" + {'Q-filtered ' if config['q_filter'] else ''}BC {config['bc']:g}"
+        if config.get('bc_fade'):
+            words += f" fading to 0 over {config['bc_fade']} steps"
         if config.get('cloning_only'):
             words += ' alone (no -Q term in the actor updates: an ablation)'
     if config['critic_warmup']:
@@ -514,7 +519,7 @@ class Cloning:
     """
 
     def __init__(self, model, demonstrations: dict[str, np.ndarray], weight: float,
-                 q_filter: bool = True, alone: bool = False) -> None:
+                 q_filter: bool = True, alone: bool = False, fade: int = 0) -> None:
         import torch
 
         self._torch = torch
@@ -522,6 +527,7 @@ class Cloning:
         self.weight = weight
         self.q_filter = q_filter
         self.alone = alone  # the actor loss is this term alone (an ablation)
+        self.fade = fade  # environment steps over which the weight falls to 0 (0: never)
         self.share = 1.0  # the share of demonstrated steps the last filter let through
         device = model.device
         self.actions = torch.as_tensor(demonstrations['action'], device=device)
@@ -542,7 +548,8 @@ class Cloning:
             q_demonstrated = torch.cat(model.critic(observations, demonstrated), dim=1).amin(1)
             q_actor = torch.cat(model.critic(observations, actions), dim=1).amin(1)
             better = (q_demonstrated > q_actor).float()
-            scale = self.weight * q_actor.abs().mean()
+            fading = max(0.0, 1.0 - model.num_timesteps / self.fade) if self.fade else 1.0
+            scale = self.weight * fading * q_actor.abs().mean()
         if self.q_filter:
             self.share = better.mean().item()
             error = error * better
@@ -577,6 +584,7 @@ def export(model, record: dict[str, Any], steps: int, seconds: float,
         'demos': record['demos'],
         'cloned_before_rl': 0,  # demonstrations cloned before the first update: none
         'bc': record['bc'],
+        'bc_fade': record.get('bc_fade', 0),
         'q_filter': record['q_filter'],
         'cloning_only': record.get('cloning_only', False),
         'critic_warmup': record['critic_warmup'],

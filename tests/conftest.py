@@ -29,10 +29,12 @@ from ur_rg2_sim.world import SimWorld, WorldConfig  # noqa: E402
 # The TCP's orientation with the gripper pointing straight down at the floor.
 GRIPPER_DOWN = pybullet.getQuaternionFromEuler([math.pi, 0, 0])
 
-# Fast DDS supports domain ids 0-232; spread concurrent pytest runs by pid. Each id in use is
-# held as a lock file, so that concurrent runs on this machine never share one: a test that
-# met another run's graph on its domain received its robot_description and transforms.
-_domain_ids = itertools.count((os.getpid() * 37) % 200)
+# Tests take domain ids 1-99 (0 is a user's graph; bench/ takes ids from 100 up), spread over
+# concurrent pytest runs by pid. Each id in use is held as a lock file, so that concurrent runs
+# on this machine never share one: a test that met another graph on its domain received its
+# robot_description, joint_states and tool_jog.
+_TEST_DOMAINS = 99
+_domain_ids = itertools.count((os.getpid() * 37) % _TEST_DOMAINS)
 _DOMAIN_LOCKS = Path(tempfile.gettempdir()) / 'ur_rg2_test_domains'
 _HELD_DOMAINS = 8  # the ids of the last few tests this process holds; older ones are freed
 _held_domains: deque = deque()  # (domain id, its open lock file)
@@ -41,8 +43,8 @@ _held_domains: deque = deque()  # (domain id, its open lock file)
 def next_domain_id() -> int:
     """Return a domain id no other test of this run or of a concurrent run holds."""
     _DOMAIN_LOCKS.mkdir(exist_ok=True)
-    for _ in range(230):
-        domain = 1 + next(_domain_ids) % 230
+    for _ in range(_TEST_DOMAINS):
+        domain = 1 + next(_domain_ids) % _TEST_DOMAINS
         if any(domain == held for held, _ in _held_domains):
             continue
         lock = open(_DOMAIN_LOCKS / f'{domain}.lock', 'w')  # noqa: SIM115 - held until freed

@@ -171,6 +171,11 @@ class Warnings:
         self._text += self._capfd.readouterr().err
         return WARNING.findall(self._text)
 
+    def console(self) -> str:
+        """Return every node's lines so far (for a failure's message)."""
+        self()
+        return self._text
+
 
 def test_tool_command_puts_the_tcp_on_targets_in_any_frame(rig):
     # base_link, pointing down; the world frame (the pedestal below); the camera's frame.
@@ -404,7 +409,7 @@ def test_a_tool_command_into_the_floor_reports_the_protective_stop(unguarded, ca
         report = wait_for(reported, 2 * TIMEOUT, 'the tool_command to be reported')
     except AssertionError as error:
         raise AssertionError(f'{error}; warnings {warnings()}, joints '
-                             f'{unguarded.joints()}') from None
+                             f'{unguarded.joints()}; console:\n{warnings.console()}') from None
     assert 'the move ended early: protective stop: rg2_' in report[0], report
     assert 'touched the floor' in report[0]
     unguarded.wait_still()

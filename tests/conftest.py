@@ -19,6 +19,9 @@ import pytest
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 os.environ.setdefault('FASTRTPS_DEFAULT_PROFILES_FILE',
                       str(Path(__file__).parents[1] / 'config' / 'fastdds.xml'))
+# One torch thread per process, as train_policy uses: torch's spinning thread pool crawls on
+# a loaded machine.
+os.environ.setdefault('OMP_NUM_THREADS', '1')
 
 import rclpy  # noqa: E402
 from rclpy.context import Context  # noqa: E402

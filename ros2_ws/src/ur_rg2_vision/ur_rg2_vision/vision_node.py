@@ -30,15 +30,16 @@ from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 from ur_rg2_common.contract import IMAGE_QOS
-from ur_rg2_common.parameters import ParameterSpec, declare_parameters
+from ur_rg2_common.parameters import declare_parameters
 from ur_rg2_common.spin import keep_freed_memory, run_node
 
-from ur_rg2_vision.detector import DEFAULT_MIN_RADIUS_PX, RED, Detection, draw_detections
+from ur_rg2_vision.detector import Detection, draw_detections
 from ur_rg2_vision.frame_store import save_frame
 from ur_rg2_vision.learned import BallModel, detection_config
 from ur_rg2_vision.localize import BallPosition, locate_first
 from ur_rg2_vision.pairing import FramePairs
 from ur_rg2_vision.ros_image import camera_matrix, image_to_depth, image_to_rgb, rgb_to_image
+from ur_rg2_vision.settings import DETECTION_PARAMETERS, DETECTORS, PARAMETERS
 
 NODE_NAME = 'ur_rg2_vision'
 
@@ -50,30 +51,6 @@ _WARN_PERIOD_S = 10.0  # a persisting input problem is logged again after this l
 _INFO_GRACE_FRAMES = 10
 _INFO_GRACE_S = 2.0
 
-_PARAMETERS = (
-    ParameterSpec('frames_dir', 'frames', 'Directory for saved frames (created when needed); '
-                  'a relative path is relative to the directory the node was started from.'),
-    ParameterSpec('save_every_n', 0, 'Save every Nth colour frame (and its depth) '
-                  'automatically; 0: off.', bounds=(0, 1_000_000)),
-    ParameterSpec('hsv_lower', list(RED.lower), 'Ball colour, lower HSV bound [H 0-179, S 0-255, '
-                  'V 0-255] (OpenCV scale). A lower hue above the upper hue wraps around 0, as '
-                  'red does.'),
-    ParameterSpec('hsv_upper', list(RED.upper), 'Ball colour, upper HSV bound [H, S, V]; see '
-                  'hsv_lower.'),
-    ParameterSpec('min_radius_px', DEFAULT_MIN_RADIUS_PX, 'Smallest ball radius in pixels that '
-                  'counts as a ball.', bounds=(1.0, 1000.0)),
-    ParameterSpec('ball_radius', 0.0, 'Ball radius in metres; 0: measure it in every frame from '
-                  'the depth and the outline. A radius given is assumed: balls of another size '
-                  'are not found.', bounds=(0.0, 10.0)),
-    ParameterSpec('detector', 'color', 'How balls are found in the colour image: "color" (the '
-                  'HSV range above, round blobs) or "learned" (a trained network, ONNX, any '
-                  'colour); the depth then gives the 3D centre either way.', read_only=True),
-    ParameterSpec('model_dir', '', 'detector "learned": a directory written by train_detector '
-                  '(model.onnx, detector.json); empty: the model shipped with the package.',
-                  read_only=True),
-)
-DETECTORS = ('color', 'learned')
-_DETECTION_PARAMETERS = ('hsv_lower', 'hsv_upper', 'min_radius_px', 'ball_radius')
 
 
 @dataclass
@@ -97,7 +74,7 @@ class VisionNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__(NODE_NAME, **kwargs)
-        values = declare_parameters(self, _PARAMETERS)
+        values = declare_parameters(self, PARAMETERS)
         if values['detector'] not in DETECTORS:
             raise ValueError(f"detector must be {' or '.join(DETECTORS)}, got "
                              f"{values['detector']!r}")
@@ -140,7 +117,7 @@ class VisionNode(Node):
     # -- parameters ---------------------------------------------------------------------------
 
     def _on_set_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
-        values = {name: self.get_parameter(name).value for name in _DETECTION_PARAMETERS}
+        values = {name: self.get_parameter(name).value for name in DETECTION_PARAMETERS}
         values.update({p.name: p.value for p in parameters if p.name in values})
         try:
             config = detection_config(values, self._model)

@@ -100,28 +100,34 @@ def test_the_exported_actor_is_the_network_with_its_input_standardisation():
         env.close()
 
 
-@pytest.fixture(scope='module')
-def pick_model():
-    """Yield a TD3 + HER model on Pick with 3 scripted demonstrations in its buffer."""
+def td3_on_pick(env, demonstrations: dict, net: list[int], *cloning):
+    """Return a TD3 + HER model on Pick, ``with_cloning(TD3, *cloning)``, demonstrations in."""
     from stable_baselines3 import TD3, HerReplayBuffer
     from ur_rg2_learning.train import (
         add_demonstrations,
         input_scaling,
-        scripted_demonstrations,
         standardising_extractor,
         with_cloning,
     )
 
-    demonstrations = scripted_demonstrations(PICK_ID, 3)
     mean, std = input_scaling(PICK_ID, demonstrations)
-    env = gym.make(PICK_ID)
-    model = with_cloning(TD3, 0.1)(
+    model = with_cloning(TD3, *cloning)(
         'MultiInputPolicy', env, seed=0, batch_size=64, learning_starts=10,
         replay_buffer_class=HerReplayBuffer, policy_kwargs={
-            'net_arch': [64, 64], 'features_extractor_class': standardising_extractor(),
+            'net_arch': net, 'features_extractor_class': standardising_extractor(),
             'features_extractor_kwargs': {'mean': mean, 'std': std}})
     add_demonstrations(model.replay_buffer, demonstrations)
-    yield model, demonstrations
+    return model
+
+
+@pytest.fixture(scope='module')
+def pick_model():
+    """Yield a TD3 + HER model on Pick with 3 scripted demonstrations in its buffer."""
+    from ur_rg2_learning.train import scripted_demonstrations
+
+    demonstrations = scripted_demonstrations(PICK_ID, 3)
+    env = gym.make(PICK_ID)
+    yield td3_on_pick(env, demonstrations, [64, 64], 0.1), demonstrations
     env.close()
 
 
@@ -169,33 +175,19 @@ def test_clipped_targets_keep_the_critic_within_the_returns(pick_model):
 
 
 def test_the_actor_update_adds_cloning_and_an_action_penalty():
-    from stable_baselines3 import TD3, HerReplayBuffer
     from stable_baselines3.common.logger import configure
     import torch
-    from ur_rg2_learning.train import (
-        Cloning,
-        add_demonstrations,
-        input_scaling,
-        scripted_demonstrations,
-        standardising_extractor,
-        with_cloning,
-    )
+    from ur_rg2_learning.train import Cloning, scripted_demonstrations
 
     demonstrations = scripted_demonstrations(PICK_ID, 2)
-    mean, std = input_scaling(PICK_ID, demonstrations)
     env = gym.make(PICK_ID)
     keys = list(env.observation_space.spaces)
     observations = {key: torch.as_tensor(demonstrations[key]) for key in keys}
     try:
         moves = {}
         for penalty in (0.0, 100.0):
-            model = with_cloning(TD3, 1.0, (-20.0, 0.0), penalty)(
-                'MultiInputPolicy', env, seed=0, batch_size=64, learning_starts=10,
-                replay_buffer_class=HerReplayBuffer, policy_kwargs={
-                    'net_arch': [32, 32], 'features_extractor_class': standardising_extractor(),
-                    'features_extractor_kwargs': {'mean': mean, 'std': std}})
+            model = td3_on_pick(env, demonstrations, [32, 32], 1.0, (-20.0, 0.0), penalty)
             model.set_logger(configure(None, []))  # as learn() would (nothing written)
-            add_demonstrations(model.replay_buffer, demonstrations)
             model.cloning = Cloning(model, demonstrations, 1.0)
             model.train(200, 64)
             assert model._n_updates == 200 and 0.0 <= model.cloning.share <= 1.0

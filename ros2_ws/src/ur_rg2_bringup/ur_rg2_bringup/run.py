@@ -8,7 +8,8 @@ left here is what a launch file cannot do, in a parent process of launch:
   routine lines go to launch's log file, not to keys' screen;
 - launch stops its nodes in order on SIGINT only (on SIGTERM it exits at once and leaves them
   running), so a SIGTERM or SIGHUP from a service manager or a closed terminal reaches launch
-  as SIGINT; a second stop signal kills launch and its nodes at once; and launch, in a session
+  as SIGINT; a second stop signal kills launch and its nodes at once, as does a launch still
+  running long after the first (launch can miss a SIGINT); and launch, in a session
   of its own, gets SIGINT should this process be killed outright, so no node outlives it;
 - the exit status: 1 when a node died, the last line saying which and how (launch_graph).
 """
@@ -23,6 +24,7 @@ import os
 import signal
 import subprocess
 import sys
+import time
 
 from ament_index_python.packages import get_package_prefix
 from launch.launch_description_sources import get_launch_description_from_python_launch_file
@@ -126,6 +128,9 @@ STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 _PR_SET_PDEATHSIG = 1
 # How often the loop looks at keys and launch, s.
 _POLL_S = 0.1
+# Launch stops its nodes within about 10 s of a SIGINT (SIGTERM, then SIGKILL, 5 s apart); a
+# launch that is still there after this long missed the signal (ros2/launch#495), s.
+_STOP_GRACE_S = 30.0
 
 
 def _prepare_launch_child() -> None:
@@ -145,6 +150,7 @@ class _Graph:
 
     def __init__(self, options: Options, interactive: bool) -> None:
         self._stop_requests = 0
+        self._stop_deadline = 0.0
         # Its own session: terminal signals reach this process (and keys), which alone
         # decides how launch stops.
         self._launch = subprocess.Popen(
@@ -160,9 +166,17 @@ class _Graph:
     def _on_stop_signal(self, _signum, _frame) -> None:
         self._stop_requests += 1
         if self._stop_requests == 1:
+            self._stop_deadline = time.monotonic() + _STOP_GRACE_S
             self._launch.send_signal(signal.SIGINT)
         else:
             os.killpg(self._launch.pid, signal.SIGKILL)
+
+    def _kill_if_stuck(self) -> None:
+        """Kill launch and its nodes if they outlived a stop request by the grace period."""
+        if self._stop_requests == 1 and time.monotonic() > self._stop_deadline:
+            print(f'bringup: launch did not stop within {_STOP_GRACE_S:.0f} s of the stop '
+                  'signal; killing the graph', file=sys.stderr, flush=True)
+            self._on_stop_signal(signal.SIGINT, None)
 
     def run(self) -> int:
         for signum in STOP_SIGNALS:
@@ -174,6 +188,7 @@ class _Graph:
                 break
             except subprocess.TimeoutExpired:
                 pass
+            self._kill_if_stuck()
             if self._keys is not None and self._keys.poll() is not None:
                 if self._keys.returncode != 0:
                     keys_failure = f'keys {describe_exit(self._keys.returncode)}'

@@ -201,6 +201,58 @@ def test_the_exported_decoding_gives_back_the_box_of_the_training_targets():
     assert rows[1, 4].max() < 0.01  # no ball: no peak over any threshold
 
 
+def test_an_exported_model_loads_back_to_train_further(tmp_path):
+    """train_detector --init: the network loaded from model.onnx computes what the file does."""
+    torch = pytest.importorskip('torch')
+    ort = pytest.importorskip('onnxruntime')
+    from ur_rg2_learning.detector_net import BallNet, Exported, load_exported
+    torch.manual_seed(0)
+    trained = BallNet()
+    with torch.no_grad():  # batch norms with statistics and scales of their own
+        for norm in (m for m in trained.modules() if isinstance(m, torch.nn.BatchNorm2d)):
+            norm.running_mean.uniform_(-0.5, 0.5)
+            norm.running_var.uniform_(0.5, 2.0)
+            norm.weight.uniform_(0.5, 1.5)
+            norm.bias.uniform_(-0.2, 0.2)
+        trained.head[-1].weight.mul_(20)  # distinct peaks: no ties for the max pool to flip
+    trained.eval()
+    path = tmp_path / MODEL_FILE
+    torch.onnx.export(Exported(trained), (torch.zeros(1, 3, 96, 128),), str(path), dynamo=False,
+                      opset_version=13, input_names=['images'], output_names=['output'])
+    images = torch.rand(8, 3, 96, 128)
+    loaded = BallNet()
+    load_exported(loaded, str(path), images)
+    loaded.eval()
+    with torch.no_grad():
+        ours = Exported(loaded)(images[:1]).numpy()
+    theirs = ort.InferenceSession(str(path)).run(None, {'images': images[:1].numpy()})[0]
+    assert np.allclose(ours, theirs, rtol=1e-4, atol=1e-4)
+    assert (theirs[0, 4] > 0.01).sum() >= 3  # peaks to compare
+    torch.onnx.export(torch.nn.Conv2d(3, 5, 3), (torch.zeros(1, 3, 96, 128),), str(path),
+                      dynamo=False, opset_version=13)
+    with pytest.raises(ValueError):  # not an export of this network
+        load_exported(BallNet(), str(path), images)
+
+
+def test_training_can_drop_the_balls_that_do_not_stand_out(tmp_path):
+    """train_detector --min-contrast: a ball within V of its surroundings' value goes."""
+    import cv2
+    from ur_rg2_learning.train_detector import ball_contrast, plain_pairs
+    pairs = []
+    for name, value in (('faint', 0.53), ('plain', 0.8), ('none', None)):
+        bgr = np.full((120, 160, 3), 0.5 * 255, np.uint8)
+        label = tmp_path / f'{name}.txt'
+        label.write_text('')
+        if value is not None:
+            cv2.circle(bgr, (80, 60), 15, (round(value * 255),) * 3, -1)
+            label.write_text(f'0 0.5 0.5 {30 / 160} {30 / 120}\n')
+            assert ball_contrast(bgr, (65, 45, 95, 75)) == pytest.approx(value - 0.5, abs=0.01)
+        cv2.imwrite(str(tmp_path / f'{name}.png'), bgr)
+        pairs.append((tmp_path / f'{name}.png', label))
+    assert [image.stem for image, _ in plain_pairs(pairs, 0.05)] == ['plain', 'none']
+    assert len(plain_pairs(pairs, 0.01)) == 3
+
+
 def test_a_ball_is_plain_to_the_eye_only_off_both_floor_colours():
     assert plain_to_the_eye([0.2], [0.5, 0.9])
     assert not plain_to_the_eye([0.2], [0.5, 0.3])  # one floor colour within 0.15 of it

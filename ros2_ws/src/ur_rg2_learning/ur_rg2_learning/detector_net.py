@@ -134,3 +134,59 @@ def loss(out: torch.Tensor, heat: torch.Tensor, regress: torch.Tensor, index: to
     picked = flat.gather(2, index[has].view(-1, 1, 1).expand(-1, 4, 1)).squeeze(2)
     box = functional.l1_loss(picked, regress[has], reduction='sum') / count
     return focal, box
+
+
+def load_exported(net: BallNet, path: str, images: torch.Tensor) -> None:
+    """Load into ``net`` the weights of its ``model.onnx`` export, to train it further.
+
+    The export folds each batch norm into its convolution; each one is set back so that the
+    network computes what the ONNX model computes (exactly in eval mode): its statistics
+    measured on ``images`` (a batch, RGB 0-1) and a scale and shift that undo them.
+    Raises ``ValueError`` when the file is not an export of this network.
+    """
+    import onnx
+    from onnx import numpy_helper
+
+    graph = onnx.load(path).graph
+    weights = {t.name: numpy_helper.to_array(t) for t in graph.initializer}
+    nodes = [node for node in graph.node if node.op_type == 'Conv']
+    order: list[nn.Conv2d] = []  # the convolutions in the order they run, as exported
+    hooks = [m.register_forward_hook(lambda m, i, o: order.append(m))
+             for m in net.modules() if isinstance(m, nn.Conv2d)]
+    net.eval()
+    with torch.no_grad():
+        net(images[:1])
+    for hook in hooks:
+        hook.remove()
+    norms = {a: b for m in net.modules() if isinstance(m, nn.Sequential)
+             for a, b in zip(m, list(m)[1:]) if isinstance(b, nn.BatchNorm2d)}
+    if len(order) != len(nodes):
+        raise ValueError(f'{path}: {len(nodes)} convolutions, the network has {len(order)}')
+    with torch.no_grad():
+        for conv, node in zip(order, nodes):
+            weight = torch.from_numpy(weights[node.input[1]].copy())
+            bias = torch.from_numpy(weights[node.input[2]].copy())
+            if weight.shape != conv.weight.shape:
+                raise ValueError(f'{path}: a {tuple(weight.shape)} convolution where the '
+                                 f'network has {tuple(conv.weight.shape)}')
+            conv.weight.copy_(weight)
+            norm = norms.get(conv)
+            if norm is None:
+                conv.bias.copy_(bias)
+                continue
+            norm.weight.fill_(1.0)
+            norm.bias.copy_(bias)
+            norm.running_mean.zero_()
+            norm.running_var.fill_(1.0 - norm.eps)
+        stats = {}
+        hooks = [norm.register_forward_hook(lambda m, i, o: stats.__setitem__(
+            m, (i[0].mean((0, 2, 3)), i[0].var((0, 2, 3), unbiased=False))))
+            for norm in norms.values()]
+        net(images)
+        for hook in hooks:
+            hook.remove()
+        for norm, (mean, var) in stats.items():
+            norm.running_mean.copy_(mean)
+            norm.running_var.copy_(var)
+            norm.weight.copy_(torch.sqrt(var + norm.eps))
+            norm.bias.add_(mean)

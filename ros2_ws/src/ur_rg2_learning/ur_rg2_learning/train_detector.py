@@ -2,16 +2,17 @@
 
 Trains :class:`ur_rg2_learning.detector_net.BallNet` (a compact CenterNet written for this
 project in plain torch, Apache-2.0; no pretrained weights, no detection library) from scratch
-on the CPU, on the data set's ``data.yaml`` (YOLO layout). Frames are scaled to the input size
-(``--imgsz`` wide, 4:3) and held in memory; each step trains on random crops of them
-(``--crop``; the network is fully convolutional), flipped, with their colour channels shuffled
-and their brightness and contrast changed. The learning rate follows a cosine over
+on the CPU, or further from a model it exported (``--init``), on the data set's ``data.yaml``
+(YOLO layout; ``--min-contrast`` drops the balls that do not stand out). Frames are scaled to
+the input size (``--imgsz`` wide, 4:3) and held in memory; each step trains on random crops of
+them (``--crop``; the network is fully convolutional), flipped, with their colour channels
+shuffled and their brightness and contrast changed. The learning rate follows a cosine over
 ``--minutes`` (a time budget: the machine may be shared) or ``--epochs``, whichever ends
-first. After each epoch the network is scored on the validation frames; the best epoch (F1
-at the node's threshold) is exported. Writes to ``--out``: ``model.onnx`` (1 x 5 x N rows
-``cx cy w h score``, the layout :mod:`ur_rg2_vision.learned` reads), ``detector.json`` (input
-size, class names, thresholds, how it was trained, with the load average, and the validation
-metrics of the exported model run as ``vision`` runs it), ``results.csv`` (per epoch) and
+first. After each epoch the network is scored on the validation frames; the best epoch (F1 at
+the node's threshold) is exported. Writes to ``--out``: ``model.onnx`` (1 x 5 x N rows ``cx cy
+w h score``, the layout :mod:`ur_rg2_vision.learned` reads), ``detector.json`` (input size,
+class names, thresholds, how it was trained, with the load average, and the validation metrics
+of the exported model run as ``vision`` runs it), ``results.csv`` (per epoch) and
 ``training_curve.png``. Needs the learning set-up (``scripts/bootstrap
 requirements-learning.txt``).
 """
@@ -43,6 +44,38 @@ FLOOR = 0.05  # scores below this are never a ball
 IOU = 0.5  # non-maximum suppression (one peak per ball already: a guard only)
 FRAME_ASPECT = 480 / 640  # the camera's frames
 VAL_FRAMES = 200  # validation frames scored after each epoch (all of them at the end)
+
+
+def ball_contrast(bgr: np.ndarray, box: tuple[float, float, float, float]) -> float:
+    """Return how far a ball stands out: |median value of its core - of a ring around it|.
+
+    Value is the brightest channel (0-1); the core is within 0.6 of the box's radius of its
+    centre, the ring 1.3-2.0 radii (plus a pixel or three) out; 1.0 when either is empty.
+    """
+    cx, cy = (box[0] + box[2]) / 2, (box[1] + box[3]) / 2
+    radius = max(box[2] - box[0], box[3] - box[1]) / 2
+    value = bgr.max(axis=2) / 255.0
+    ys, xs = np.mgrid[0:bgr.shape[0], 0:bgr.shape[1]]
+    distance = np.hypot(xs - cx, ys - cy)
+    core = value[distance <= 0.6 * radius]
+    ring = value[(distance >= 1.3 * radius + 1) & (distance <= 2.0 * radius + 3)]
+    if not core.size or not ring.size:
+        return 1.0
+    return float(abs(np.median(core) - np.median(ring)))
+
+
+def plain_pairs(pairs: list[tuple[Path, Path]], min_contrast: float
+                ) -> list[tuple[Path, Path]]:
+    """Return the samples without a ball or whose ball's contrast is at least ``min_contrast``."""
+    kept = []
+    for image, label in pairs:
+        bgr = cv2.imread(str(image))
+        if bgr is None:
+            raise OSError(f'cannot read {image}')
+        box = label_box(label, bgr.shape[1], bgr.shape[0])
+        if box is None or ball_contrast(bgr, box) >= min_contrast:
+            kept.append((image, label))
+    return kept
 
 
 def load_split(pairs: list[tuple[Path, Path]], size: tuple[int, int]
@@ -163,6 +196,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--seed', type=int, default=0)
     parser.add_argument('--batch', type=int, default=64)
     parser.add_argument('--lr', type=float, default=3e-3)
+    parser.add_argument('--init', metavar='MODEL_DIR',
+                        help='start from the weights of a model directory (its model.onnx) '
+                        'instead of from scratch')
+    parser.add_argument('--min-contrast', type=float, default=0.0, metavar='V',
+                        help='drop the samples (train and val) whose ball is within V of its '
+                        "surroundings' value (0-1; 0.05: dark on dark)")
     parser.add_argument('--threads', type=int, default=1,
                         help='torch CPU threads (one ran 10 times faster than two on the '
                         'shared 2-core machine)')
@@ -194,12 +233,29 @@ def main(argv: list[str] | None = None) -> int:
     if not train_pairs or not val_pairs:
         print(f'train_detector: {args.data} needs train and val images', file=sys.stderr)
         return 2
+    dropped = 0
+    if args.min_contrast > 0:
+        counts = len(train_pairs) + len(val_pairs)
+        train_pairs = plain_pairs(train_pairs, args.min_contrast)
+        val_pairs = plain_pairs(val_pairs, args.min_contrast)
+        dropped = counts - len(train_pairs) - len(val_pairs)
+        print(f'train_detector: {dropped} samples dropped (ball contrast < '
+              f'{args.min_contrast})', flush=True)
     images, boxes = load_split(train_pairs, size)
     val_check = [val_pairs[i] for i in np.linspace(0, len(val_pairs) - 1, min(
         VAL_FRAMES, len(val_pairs))).astype(int)]
     print(f'train_detector: {len(images)} training frames loaded in '
           f'{time.monotonic() - started:.0f} s', flush=True)
     net = BallNet()
+    if args.init:
+        from ur_rg2_learning.detector_net import load_exported
+        calibration = torch.from_numpy(images[rng.choice(len(images), min(
+            64, len(images)), replace=False)].transpose(0, 3, 1, 2) / 255).float()
+        try:
+            load_exported(net, str(Path(args.init) / MODEL_FILE), calibration)
+        except (OSError, ValueError) as error:
+            print(f'train_detector: --init {args.init}: {error}', file=sys.stderr)
+            return 2
     optimizer = torch.optim.AdamW(net.parameters(), lr=args.lr, weight_decay=1e-4)
     budget = args.minutes * 60
     steps_per_epoch = max(1, len(images) // args.batch)
@@ -269,11 +325,15 @@ def main(argv: list[str] | None = None) -> int:
         'confidence': confidence,
         'layout': 'ur_rg2_learning.detector_net (CenterNet, stride 8) ONNX: 1 x 5 x N rows cx '
                   'cy w h score in input pixels of the frame scaled to the input',
-        'licence': 'Apache-2.0 (trained by this project, from scratch)',
+        'licence': 'Apache-2.0 (trained by this project, from scratch{})'.format(
+            f', then further from {args.init}' if args.init else ''),
         'training': {'data': str(Path(args.data).resolve()), 'epochs': len(rows),
                      'best_epoch': best_epoch, 'imgsz': args.imgsz, 'crop': args.crop,
                      'seed': args.seed, 'batch': args.batch, 'lr': args.lr,
-                     'frames': len(images), 'seconds': round(seconds, 1),
+                     'frames': len(images), 'val_frames': len(val_pairs),
+                     'dropped_low_contrast': dropped, 'init': args.init and str(
+                         Path(args.init).resolve()),
+                     'seconds': round(seconds, 1),
                      'load_average': load,
                      'command': ' '.join(['train_detector', *(sys.argv[1:] if argv is None
                                                               else argv)]),

@@ -110,6 +110,13 @@ def run() -> list[tuple[str, str, str]]:
     settings = json.loads((SHIPPED_MODEL / SETTINGS_FILE).read_text())
     training, validation = settings['training'], settings['validation']
     size = os.path.getsize(SHIPPED_MODEL / MODEL_FILE) / 1e6
+    minutes, before = training['seconds'] / 60, 0.0  # before: what trained its --init model
+    record = training
+    while 'init' in record:
+        record = record['init']['training']
+        before += record['seconds'] / 60
+    spent = f'{minutes:.1f} min' + (f' on from {before:.1f} min (--init): {minutes + before:.1f}'
+                                    ' min in all' if before else '')
     _, default = _render_frames()
     pipeline = _pipeline(default, {'detector': 'learned'})
     load_pipeline = os.getloadavg()[0]
@@ -120,7 +127,7 @@ def run() -> list[tuple[str, str, str]]:
         ('detector learned: frames processed, fed at 30 Hz (ball/position)',
          f'{pipeline["positions"]} of {pipeline["sent"]} (load {load_pipeline:.1f})', 'all'),
         ('detector learned: shipped model, training time (train_detector, this machine)',
-         f'{training["seconds"] / 60:.1f} min ({training["epochs"]} epochs, imgsz '
+         f'{spent} ({training["epochs"]} epochs, imgsz '
          f'{training["imgsz"]}, load {training["load_average"]["start"]}-'
          f'{training["load_average"]["end"]})', '<= 60 min'),
         ('detector learned: shipped model, size (model.onnx)', f'{size:.1f} MB', 'a few MB'),

@@ -75,6 +75,13 @@ def test_short_training_exports_a_model_evaluate_reads_and_vision_serves(tmp_pat
     assert loaded.input_size == (120, 160)  # 4:3 frames
     settings = json.loads((model / SETTINGS_FILE).read_text())
     assert 'Apache-2.0' in settings['licence'] and 'ultralytics' not in json.dumps(settings)
+    further = subprocess.run(  # --init: on from the model, which it records
+        [str(BIN / 'train_detector'), '--data', str(data), '--out', str(tmp_path / 'further'),
+         '--epochs', '1', '--imgsz', '160', '--crop', '96', '--batch', '4', '--init',
+         str(model)], capture_output=True, text=True, timeout=300)
+    assert further.returncode == 0, further.stderr[-3000:]
+    record = json.loads((tmp_path / 'further' / SETTINGS_FILE).read_text())['training']
+    assert record['init']['training'] == settings['training'] and record['epochs'] == 1
     evaluated = subprocess.run(
         [str(BIN / 'evaluate_detector'), '--model', str(model), '--data', str(data)],
         capture_output=True, text=True, timeout=120)

@@ -253,6 +253,7 @@ def main(argv: list[str] | None = None) -> int:
             64, len(images)), replace=False)].transpose(0, 3, 1, 2) / 255).float()
         try:
             load_exported(net, str(Path(args.init) / MODEL_FILE), calibration)
+            json.loads((Path(args.init) / SETTINGS_FILE).read_text())
         except (OSError, ValueError) as error:
             print(f'train_detector: --init {args.init}: {error}', file=sys.stderr)
             return 2
@@ -331,8 +332,7 @@ def main(argv: list[str] | None = None) -> int:
                      'best_epoch': best_epoch, 'imgsz': args.imgsz, 'crop': args.crop,
                      'seed': args.seed, 'batch': args.batch, 'lr': args.lr,
                      'frames': len(images), 'val_frames': len(val_pairs),
-                     'dropped_low_contrast': dropped, 'init': args.init and str(
-                         Path(args.init).resolve()),
+                     'dropped_low_contrast': dropped,
                      'seconds': round(seconds, 1),
                      'load_average': load,
                      'command': ' '.join(['train_detector', *(sys.argv[1:] if argv is None
@@ -340,6 +340,10 @@ def main(argv: list[str] | None = None) -> int:
                      'network': 'ur_rg2_learning.detector_net.BallNet',
                      'library': f'torch {torch.__version__} (BSD-3-Clause)'},
     })
+    if args.init:  # what trained the weights it started from
+        settings['training']['init'] = {'model': str(Path(args.init).resolve()), **{
+            k: v for k, v in json.loads((Path(args.init) / SETTINGS_FILE).read_text()).items()
+            if k in ('training', 'validation')}}
     # The validation metrics of the exported model, run as the vision node runs it.
     scores = evaluate(export(torch, net, size, out, settings).boxes, val_pairs)
     settings['validation'] = {'recall': round(scores.recall, 4),

@@ -7,10 +7,13 @@ change what they should), not to master a task (the shipped policies and docs/le
 3-seed table measure that).
 """
 
+import os
 from pathlib import Path
 import re
+import signal
 import subprocess
 import sys
+import time
 
 import gymnasium as gym
 import numpy as np
@@ -175,7 +178,7 @@ def test_clipped_targets_keep_the_critic_within_the_returns(pick_model):
 
 
 def test_the_actor_update_adds_cloning_and_an_action_penalty():
-    from stable_baselines3.common.logger import configure
+    from stable_baselines3.common.logger import Logger
     import torch
     from ur_rg2_learning.train import Cloning, scripted_demonstrations
 
@@ -187,7 +190,7 @@ def test_the_actor_update_adds_cloning_and_an_action_penalty():
         moves = {}
         for penalty in (0.0, 100.0):
             model = td3_on_pick(env, demonstrations, [32, 32], 1.0, (-20.0, 0.0), penalty)
-            model.set_logger(configure(None, []))  # as learn() would (nothing written)
+            model.set_logger(Logger(None, []))  # train() logs; a Logger with no outputs
             model.cloning = Cloning(model, demonstrations, 1.0)
             model.train(200, 64)
             assert model._n_updates == 200 and 0.0 <= model.cloning.share <= 1.0
@@ -274,6 +277,56 @@ def test_seeds_run_as_ray_tasks_and_write_one_table(tmp_path):
     assert (out / 'seeds.png').read_bytes().startswith(b'\x89PNG')
     for seed in (0, 1):
         assert Actor.load(out / f'seed_{seed}').meta['seed'] == seed
+
+
+def descendants(pid: int) -> set[int]:
+    """Return the pids of a process's descendants (from /proc)."""
+    children: dict[int, list[int]] = {}
+    for stat in Path('/proc').glob('[0-9]*/stat'):
+        try:
+            fields = stat.read_text().rsplit(')', 1)[1].split()
+        except OSError:
+            continue  # ended meanwhile
+        children.setdefault(int(fields[1]), []).append(int(stat.parent.name))
+    found, todo = set(), [pid]
+    while todo:
+        for child in children.get(todo.pop(), []):
+            found.add(child)
+            todo.append(child)
+    return found
+
+
+def test_an_interrupted_seeds_run_stops_its_ray_workers(tmp_path):
+    """SIGINT to train_policy --seeds: exit 130, nothing written, no seed left computing."""
+    out = tmp_path / 'seeds'
+    run = subprocess.Popen(
+        [str(BIN / 'train_policy'), '--env', REACH_ID, '--timesteps', '1000000', '--seeds', '0',
+         '1', '--num-cpus', '2', '--out', str(out), '--net', '16', '16', '--eval-every', '100',
+         '--eval-episodes', '1'], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+        start_new_session=True)
+    try:
+        seeds_running: set[str] = set()
+        for line in run.stdout:  # the seeds' curve lines come through Ray's log
+            seeds_running.update(re.findall(r'seed (\d): +\d+/1000000 steps', line))
+            if len(seeds_running) == 2:
+                break
+        assert len(seeds_running) == 2, 'the seeds did not start'
+        workers = {pid for pid in descendants(run.pid)
+                   if 'train_seed' in Path(f'/proc/{pid}/cmdline').read_bytes().decode(
+                       errors='replace')}
+        assert len(workers) == 2, workers
+        run.send_signal(signal.SIGINT)
+        assert run.wait(timeout=120) == 130
+        assert 'train_policy: interrupted; nothing written' in run.stdout.read()
+        deadline = time.monotonic() + 60
+        while workers & {int(p.name) for p in Path('/proc').glob('[0-9]*')}:
+            assert time.monotonic() < deadline, f'workers still running: {workers}'
+            time.sleep(0.2)
+        assert not out.exists()
+    finally:
+        if run.poll() is None:
+            os.killpg(run.pid, signal.SIGKILL)
+            run.wait(timeout=60)
 
 
 def test_evaluate_policy_refuses_a_directory_without_a_policy(tmp_path):

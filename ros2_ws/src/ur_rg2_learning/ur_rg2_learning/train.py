@@ -126,7 +126,7 @@ def parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Train, export, plot; exit code 0, 2 when the learning set-up is missing."""
+    """Train, export, plot; exit code 0, 2 without the learning set-up, 130 on Ctrl-C."""
     p = parser()
     args = p.parse_args(argv)
     if args.timesteps < 1 or args.eval_episodes < 1 or args.final_episodes < 0 or min(
@@ -157,14 +157,18 @@ def main(argv: list[str] | None = None) -> int:
               if key not in ('seeds', 'seed', 'num_cpus', 'address', 'out')}
     config['command'] = shlex.join(['train_policy', *(sys.argv[1:] if argv is None else argv)])
     out = Path(args.out)
-    if args.seeds is None:
-        result = train_seed(config, args.seed)
-        write_result(result, out)
-        print(summary(result, out))
-        return 0
-    from ur_rg2_learning.seeds import run_seeds
+    try:
+        if args.seeds is None:
+            result = train_seed(config, args.seed)
+            write_result(result, out)
+            print(summary(result, out))
+            return 0
+        from ur_rg2_learning.seeds import run_seeds
 
-    return run_seeds(config, args.seeds, out, args.num_cpus, args.address)
+        return run_seeds(config, args.seeds, out, args.num_cpus, args.address)
+    except KeyboardInterrupt:
+        print(f'train_policy: interrupted; nothing written to {out}', file=sys.stderr)
+        return 130
 
 
 def summary(result: dict[str, Any], out: Path) -> str:
@@ -183,6 +187,7 @@ def train_seed(config: dict[str, Any], seed: int) -> dict[str, Any]:
     """
     from stable_baselines3 import DDPG, TD3, HerReplayBuffer
     from stable_baselines3.common.callbacks import BaseCallback
+    from stable_baselines3.common.logger import Logger
     from stable_baselines3.common.noise import NormalActionNoise
     import torch
 
@@ -225,6 +230,8 @@ def train_seed(config: dict[str, Any], seed: int) -> dict[str, Any]:
                        'features_extractor_class': standardising_extractor(),
                        'features_extractor_kwargs': {'mean': mean, 'std': std}},
         verbose=0)
+    # Without a logger of its own, each learn() makes an empty /tmp/SB3-<time> folder.
+    model.set_logger(Logger(None, []))
     record = dict(config, seed=seed, observation_keys=list(env.observation_space.spaces),
                   action_low=env.action_space.low.tolist(),
                   action_high=env.action_space.high.tolist())

@@ -96,6 +96,27 @@ def test_the_ball_is_placed_in_base_link_while_its_sighting_is_recent():
     assert np.allclose(state.ball_centre(1.0), (0.4, 0.0, 0.03 - PEDESTAL))
 
 
+def test_the_first_sighting_is_waited_for_a_bounded_moment_a_stale_one_is_not():
+    state = RobotState()
+    state.add_static(tf_message('world', 'base_link', PEDESTAL))
+    ball = PointStamped()
+    ball.header.frame_id = 'world'
+    ball.point.x, ball.point.z = 0.4, 0.03
+    threading.Timer(0.2, state.add_ball, (ball,)).start()
+    assert np.allclose(state.ball_centre(1.0, wait=30.0), (0.4, 0.0, 0.03 - PEDESTAL))
+    refusals = []
+
+    def too_old() -> None:  # seen, but too long ago: refused without the wait
+        with pytest.raises(ValueError, match='no ball seen in the last 0 s'):
+            state.ball_centre(0.0, wait=600.0)
+        refusals.append(True)
+
+    asking = threading.Thread(target=too_old, daemon=True)
+    asking.start()
+    asking.join(timeout=60.0)
+    assert refusals and not asking.is_alive()
+
+
 class Clock:
     def __init__(self) -> None:
         self.now = 0.0

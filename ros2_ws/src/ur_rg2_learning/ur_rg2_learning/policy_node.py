@@ -97,9 +97,9 @@ class PolicyNode(Node):
             raise KinematicsError('invalid', 'no floor known (no world frame on /tf_static)')
         return arm
 
-    def _ball_centre(self):
+    def _ball_centre(self, wait: float = 0.0):
         """Return the ball's centre in base_link from the latest ball/position (ValueError)."""
-        return self.state.ball_centre(self.get_parameter('ball_timeout').value)
+        return self.state.ball_centre(self.get_parameter('ball_timeout').value, wait)
 
     # -- the episode ----------------------------------------------------------------------------
 
@@ -115,7 +115,7 @@ class PolicyNode(Node):
             for client, name in clients[:2 if self._picks else 1]:
                 if not client.server_is_ready():
                     raise ValueError(f'{name} is not available (is the sim running?)')
-            centre = self._ball_centre()  # waits for the ball's frame a bounded moment
+            centre = self._ball_centre(wait=FRAME_WAIT_S)  # bounded waits, as for joints
             episode, trajectory = start_episode(
                 self._picks, self._kinematics(wait=FRAME_WAIT_S), joints, centre,
                 radius, self.state.velocity_limits)

@@ -229,7 +229,7 @@ class MotionNode(Node):
 
     def _ball_in_base_link(self) -> np.ndarray:
         try:
-            return self.state.ball_centre(self.get_parameter('ball_timeout').value)
+            return self.state.ball_centre(self.get_parameter('ball_timeout').value, FRAME_WAIT_S)
         except ValueError as error:
             raise PickError(str(error)) from None
 

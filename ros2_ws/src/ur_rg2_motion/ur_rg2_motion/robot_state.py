@@ -113,6 +113,7 @@ class RobotState:
         """Take a ``ball/position`` message as the latest sighting."""
         with self._lock:
             self._ball = (time.monotonic(), message)
+            self._lock.notify_all()
 
     # -- what the nodes ask ------------------------------------------------------------------
 
@@ -156,13 +157,15 @@ class RobotState:
         with self._lock:
             return self._opening
 
-    def ball_centre(self, max_age: float) -> np.ndarray:
+    def ball_centre(self, max_age: float, wait: float = 0.0) -> np.ndarray:
         """Return the ball's centre in base_link from the latest sighting (ValueError why not).
 
-        The sighting must be at most ``max_age`` s old; its frame is waited for a bounded
+        The sighting must be at most ``max_age`` s old; before the first one has come (a node
+        just started) it is waited for up to ``wait`` s. Its frame is waited for a bounded
         moment (messages.FRAME_WAIT_S).
         """
         with self._lock:
+            self._lock.wait_for(lambda: self._ball is not None, wait)
             ball = self._ball
         return ball_in_base_link(self.tf, ball, max_age)
 

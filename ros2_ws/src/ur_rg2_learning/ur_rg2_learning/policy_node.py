@@ -113,7 +113,7 @@ class PolicyNode(Node):
             joints = self.state.joints(wait=FRAME_WAIT_S)
             clients = ((self._trajectory, TRAJECTORY_ACTION), (self._gripper, GRIPPER_ACTION))
             for client, name in clients[:2 if self._picks else 1]:
-                if not client.server_is_ready():
+                if not client.wait_for_server(timeout_sec=FRAME_WAIT_S):
                     raise ValueError(f'{name} is not available (is the sim running?)')
             centre = self._ball_centre(wait=FRAME_WAIT_S)  # bounded waits, as for joints
             episode, trajectory = start_episode(

@@ -241,7 +241,7 @@ class MotionNode(Node):
         self.state.joints(FRAME_WAIT_S)
         for client, name in ((self._trajectory, TRAJECTORY_ACTION),
                              (self._gripper, GRIPPER_ACTION)):
-            if not client.server_is_ready():
+            if not client.wait_for_server(timeout_sec=FRAME_WAIT_S):
                 raise PickError(f'{name} is not available (is the sim or the driver running?)')
         return run_pick(self._arm_io, arm, ball,
                         pick_settings(lambda name: self.get_parameter(name).value))

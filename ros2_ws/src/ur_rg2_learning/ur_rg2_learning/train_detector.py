@@ -247,13 +247,14 @@ def main(argv: list[str] | None = None) -> int:
     print(f'train_detector: {len(images)} training frames loaded in '
           f'{time.monotonic() - started:.0f} s', flush=True)
     net = BallNet()
+    init_settings: dict = {}  # the detector.json of the model --init starts from
     if args.init:
         from ur_rg2_learning.detector_net import load_exported
         calibration = torch.from_numpy(images[rng.choice(len(images), min(
             64, len(images)), replace=False)].transpose(0, 3, 1, 2) / 255).float()
         try:
             load_exported(net, str(Path(args.init) / MODEL_FILE), calibration)
-            json.loads((Path(args.init) / SETTINGS_FILE).read_text())
+            init_settings = json.loads((Path(args.init) / SETTINGS_FILE).read_text())
         except (OSError, ValueError) as error:
             print(f'train_detector: --init {args.init}: {error}', file=sys.stderr)
             return 2
@@ -342,8 +343,7 @@ def main(argv: list[str] | None = None) -> int:
     })
     if args.init:  # what trained the weights it started from
         settings['training']['init'] = {'model': str(Path(args.init).resolve()), **{
-            k: v for k, v in json.loads((Path(args.init) / SETTINGS_FILE).read_text()).items()
-            if k in ('training', 'validation')}}
+            k: v for k, v in init_settings.items() if k in ('training', 'validation')}}
     # The validation metrics of the exported model, run as the vision node runs it.
     scores = evaluate(export(torch, net, size, out, settings).boxes, val_pairs)
     settings['validation'] = {'recall': round(scores.recall, 4),

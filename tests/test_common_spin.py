@@ -39,21 +39,22 @@ class Taker(Node):
         self.create_timer(0.01, self.take)
 
     def take(self):
-        # As rclpy's C++ does when the SIGINT's KeyboardInterrupt hits it mid-conversion.
-        try:
-            os.kill(os.getpid(), signal.SIGINT)
-            time.sleep(5)  # the SIGINT ends it at once
-        except KeyboardInterrupt:
-            raise RuntimeError("Unable to convert call argument '0' to Python object")
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(1)  # work the SIGINT must not cut short
+        print('callback finished', flush=True)
 
 sys.exit(run_node(Taker, None, 'taker'))
 """
 
 
-def test_a_sigint_that_surfaces_as_another_error_in_a_callback_is_a_clean_stop():
+def test_a_sigint_mid_callback_lets_it_finish_then_stops_cleanly():
+    # A KeyboardInterrupt raised mid-spin could land inside rclpy's own objects, a Task the
+    # executor was building, which then printed 'Exception ignored ... AttributeError'.
     env = dict(os.environ, ROS_DOMAIN_ID=str(next_domain_id()),
                ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
     done = subprocess.run([sys.executable, '-c', NODE_STOPPED_IN_A_CALLBACK], env=env,
                           capture_output=True, text=True, timeout=60)
     assert done.returncode == 0, done.stderr
-    assert 'Traceback' not in done.stderr and 'stopped:' not in done.stderr, done.stderr
+    assert done.stdout.count('callback finished') == 1, done.stdout
+    assert 'Traceback' not in done.stderr and 'Exception ignored' not in done.stderr, done.stderr
+    assert 'stopped:' not in done.stderr, done.stderr

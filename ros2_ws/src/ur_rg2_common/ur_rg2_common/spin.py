@@ -62,13 +62,17 @@ def run_node(make_node: Callable[[], N], args: Optional[list[str]], logger_name:
     # SIGINT is how ros2 launch and ros2 run stop a node, even when it was started with SIGINT
     # ignored (a shell's background job, nohup).
     interrupted = []
+    spinning = []
 
     def on_sigint(signum: int, frame: object) -> None:
         interrupted.append(signum)
         # A second SIGINT (a terminal's Ctrl-C and launch's own) must not land in a __del__
         # on the way out, where Python can only print it as 'Exception ignored'.
         signal.signal(signal.SIGINT, signal.SIG_IGN)
-        raise KeyboardInterrupt
+        # Once spinning, the loop below sees the flag within SPIN_WAIT_S: a KeyboardInterrupt
+        # there could land inside rclpy's own objects (a Task half-built by the executor).
+        if not spinning:
+            raise KeyboardInterrupt
 
     signal.signal(signal.SIGINT, on_sigint)
     rclpy.init(args=args)
@@ -92,7 +96,8 @@ def run_node(make_node: Callable[[], N], args: Optional[list[str]], logger_name:
             # Not executor.spin(): it may sleep on in its wait set after a signal has shut the
             # context down (docs/design.md); a bounded wait notices the shutdown within
             # SPIN_WAIT_S whatever happens.
-            while rclpy.ok():
+            spinning.append(True)
+            while rclpy.ok() and not interrupted:
                 message = failure(node) if failure is not None else None
                 if message is not None:
                     node.get_logger().fatal(message)
@@ -100,9 +105,9 @@ def run_node(make_node: Callable[[], N], args: Optional[list[str]], logger_name:
                 executor.spin_once(timeout_sec=SPIN_WAIT_S)
         except Exception as error:
             # SIGINT/SIGTERM shut the context down; during start-up or mid-spin that surfaces
-            # as an RCLError, which is no error of ours. The KeyboardInterrupt of that same
-            # SIGINT often follows inside this handler, so the outer try catches it. Raised
-            # while rclpy's C++ turns a message into Python, the KeyboardInterrupt comes out as
+            # as an RCLError, which is no error of ours. During start-up the KeyboardInterrupt
+            # of that same SIGINT often follows inside this handler, so the outer try catches
+            # it; raised while rclpy's C++ turns an argument into Python, it comes out as
             # pybind11's RuntimeError 'Unable to convert call argument': a stop all the same.
             if rclpy.ok() and not interrupted:
                 get_logger(logger_name).error(f'stopped: {error}')

@@ -10,6 +10,7 @@ import pytest
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import JointState
+from ur_rg2_tools.backlog import WriteBacklog
 from ur_rg2_tools.bag import (
     BagWriter,
     RecordingError,
@@ -166,3 +167,18 @@ def test_full_disk_stops_writing_and_what_was_written_reads_back(tmp_path):
     finally:
         recovered.stream.close()
     assert list(deserialize_message(first.data, JointState).position) == [0.0]
+
+
+def test_the_write_backlog_drops_past_its_size_and_counts_per_topic():
+    backlog = WriteBacklog(max_bytes=1000)
+    assert backlog.take('/image', 600) and backlog.take('/joint_states', 300)
+    assert not backlog.take('/image', 600)  # 1500 > 1000: dropped
+    assert backlog.take('/joint_states', 100)
+    backlog.written(600)
+    assert backlog.take('/image', 600) and backlog.held == 1000
+    assert backlog.summary() == '1 (/image: 1)'
+    # A message larger than the whole cache still goes through when nothing waits.
+    empty = WriteBacklog(max_bytes=10)
+    assert empty.take('/image', 100) and not empty.take('/image', 1)
+    with pytest.raises(ValueError, match='must be positive'):
+        WriteBacklog(0)

@@ -203,6 +203,10 @@ def test_bad_input_is_one_clear_error_and_nothing_lost(ros_graph, tmp_path):
                      ros_graph.env, tmp_path / 'again.log')
     assert again.wait(60) == 1 and 'File exists' in again.output
     assert 'Traceback' not in again.output
+    no_cache = Launched(['ros2', 'run', 'ur_rg2_tools', 'record', '--max-cache-size', '0',
+                         '--all'], ros_graph.env, tmp_path / 'no_cache.log')
+    assert no_cache.wait(60) == 2
+    assert '--max-cache-size must be positive, not 0' in no_cache.output
     # replay: a missing file and a file that is no recording.
     (tmp_path / 'text.mcap').write_text('hello')
     for name, reason in (('missing.mcap', 'No such file'),

@@ -2,12 +2,13 @@
 
 ``ros2 run ur_rg2_tools record [-o FILE] [--all | TOPIC ...]``. Messages are taken serialized
 (rclpy's ``raw=True``: the CDR bytes as they came, no decode and re-encode) and handed to a
-writer thread, so the subscriptions never wait for compression or the disk. Each topic is
-subscribed to with what its publishers offer (rosbag2's rule: reliable and transient local when
-every publisher is, so /tf_static and robot_description arrive). Ctrl-C finishes the file and
-exits 0; a topic that never appears, or a write that fails (disk full), ends it with one error
-line and exit code 1, the file complete up to there (or its written chunks readable by
-``recover`` when even the end could not be written).
+writer thread, so the subscriptions never wait for compression or the disk; past
+``--max-cache-size`` bytes waiting, a message is dropped and counted, as rosbag2 does. Each
+topic is subscribed to with what its publishers offer (rosbag2's rule: reliable and transient
+local when every publisher is, so /tf_static and robot_description arrive). Ctrl-C finishes
+the file and exits 0; a topic that never appears, or a write that fails (disk full), ends it
+with one error line and exit code 1, the file complete up to there (or its written chunks
+readable by ``recover`` when even the end could not be written).
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from rclpy.utilities import remove_ros_args
 from rosidl_runtime_py.utilities import get_message
 from ur_rg2_common.spin import run_node
 
+from ur_rg2_tools.backlog import DEFAULT_MAX_BYTES, WriteBacklog
 from ur_rg2_tools.bag import BagWriter, offered_qos_yaml
 from ur_rg2_tools.msgdefs import DefinitionNotFoundError, full_text
 
@@ -54,9 +56,15 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     parser.add_argument('--wait', type=float, default=10.0, metavar='S',
                         help='seconds a named topic may take to appear before it is an error '
                         '(default: 10)')
+    parser.add_argument('--max-cache-size', type=int, default=DEFAULT_MAX_BYTES,
+                        metavar='BYTES', help='bytes of messages that may wait for the writer; '
+                        f'past them messages are dropped and counted (default: {DEFAULT_MAX_BYTES}'
+                        ', as rosbag2)')
     options = parser.parse_args(argv)
     if options.all == bool(options.topics):
         parser.error('give either --all or one or more topics')
+    if options.max_cache_size <= 0:
+        parser.error(f'--max-cache-size must be positive, not {options.max_cache_size}')
     if options.output is None:
         options.output = time.strftime('ur_rg2_%Y_%m_%d-%H_%M_%S.mcap')
     return options
@@ -85,6 +93,7 @@ class RecorderNode(Node):
         self.path = options.output
         self._bag = BagWriter(self.path, options.compression)  # FileExistsError: start-up error
         self._queue: queue.SimpleQueue = queue.SimpleQueue()
+        self._backlog = WriteBacklog(options.max_cache_size)
         self._recorded: dict[str, Any] = {}
         self._failure: str | None = None
         self._write_failed = False  # the file is broken: nothing more goes to it
@@ -148,21 +157,30 @@ class RecorderNode(Node):
         self._queue.put(('topic', channel, topic, type_name, definition,
                          offered_qos_yaml(p.qos_profile for p in publishers), type_hash))
         self._recorded[topic] = self.create_subscription(
-            message_type, topic, partial(self._on_message, channel), request_qos(publishers),
+            message_type, topic, partial(self._on_message, channel, topic),
+            request_qos(publishers),
             raw=True)
         self.get_logger().info(f'recording {topic} [{type_name}]')
 
-    def _on_message(self, channel: int, data: bytes, info: dict) -> None:
+    def _on_message(self, channel: int, topic: str, data: bytes, info: dict) -> None:
+        if not self._backlog.take(topic, len(data)):
+            self.get_logger().warning(
+                f'the writer is {self._backlog.held / 1e6:.0f} MB behind: dropping messages '
+                '(a larger --max-cache-size, or --compression lz4 or none, keeps up)',
+                throttle_duration_sec=5.0)
+            return
         self._queue.put(('message', channel, data, info['received_timestamp'],
                          info['source_timestamp'], info['publication_sequence_number']))
 
     def _write_loop(self) -> None:
         channels: dict[int, int] = {}  # key from _subscribe: MCAP channel id
         while (item := self._queue.get()) is not None:
-            if self._write_failed:
-                self._lost += item[0] == 'message'
-                continue
             kind, channel, *rest = item
+            if kind == 'message':
+                self._backlog.written(len(rest[0]))
+            if self._write_failed:
+                self._lost += kind == 'message'
+                continue
             try:
                 if kind == 'topic':
                     channels[channel] = self._bag.add_topic(*rest)
@@ -192,6 +210,8 @@ class RecorderNode(Node):
         line = (f'{bag.messages} messages, {bag.data_bytes / 1e6:.1f} MB '
                 f'({written / 1e6:.1f} MB written), {rate:.1f} MB/s, '
                 f'{len([s for s in self._recorded.values() if s])} topics')
+        if self._backlog.dropped:
+            line += f', {sum(self._backlog.dropped.values())} dropped'
         if self._tty:
             sys.stderr.write(f'\r{line}   ')
             sys.stderr.flush()
@@ -223,6 +243,9 @@ class RecorderNode(Node):
                     f'chunks read back with `ros2 run ur_rg2_tools recover {self.path}`')
         elif self._lost:
             get_logger(f'{NODE_NAME}.file').error(f'{self._lost} messages not written')
+        if self._backlog.dropped:
+            get_logger(f'{NODE_NAME}.file').warning(
+                f'dropped {self._backlog.summary()} messages: the writer fell behind')
         super().destroy_node()
 
 

@@ -58,3 +58,37 @@ def test_a_sigint_mid_callback_lets_it_finish_then_stops_cleanly():
     assert done.stdout.count('callback finished') == 1, done.stdout
     assert 'Traceback' not in done.stderr and 'Exception ignored' not in done.stderr, done.stderr
     assert 'stopped:' not in done.stderr, done.stderr
+
+
+NODE_STOPPED_WHILE_BUILT = """
+import os, signal, sys, threading
+from rclpy.node import Node
+from std_msgs.msg import String
+from ur_rg2_common.spin import run_node
+
+class Builder(Node):
+    def __init__(self):
+        super().__init__('builder')
+        os.kill(os.getpid(), signal.SIGINT)
+        self._worker = threading.Event()
+        threading.Thread(target=self._worker.wait).start()  # stopped only by destroy_node
+        self.create_publisher(String, 'chatter', 10)
+        self.get_logger().info('built')
+
+    def destroy_node(self):
+        self._worker.set()
+        print('destroyed', flush=True)
+        super().destroy_node()
+
+sys.exit(run_node(Builder, None, 'builder'))
+"""
+
+
+def test_a_sigint_while_the_node_is_built_finishes_it_then_destroys_it():
+    env = dict(os.environ, ROS_DOMAIN_ID=str(next_domain_id()),
+               ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+    done = subprocess.run([sys.executable, '-c', NODE_STOPPED_WHILE_BUILT], env=env,
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert 'built' in done.stderr and done.stdout.count('destroyed') == 1, done
+    assert 'Traceback' not in done.stderr and 'Failed to publish' not in done.stderr, done.stderr

@@ -9,6 +9,7 @@ import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.logging import get_logger
 from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions, install_signal_handlers
 
 from ur_rg2_common.executors import BlockingGroupExecutor
 
@@ -59,23 +60,21 @@ def run_node(make_node: Callable[[], N], args: Optional[list[str]], logger_name:
     ``failure``, if given, is asked after every wait: a message from it is logged as fatal and
     ends the process with exit code 1.
     """
-    # SIGINT is how ros2 launch and ros2 run stop a node, even when it was started with SIGINT
-    # ignored (a shell's background job, nohup).
+    # SIGINT (how ros2 launch and ros2 run stop a node, even one started with SIGINT ignored)
+    # and SIGTERM set a flag that the loop below sees within SPIN_WAIT_S. A KeyboardInterrupt
+    # could land anywhere: inside rclpy's own objects, or in a constructor that has started a
+    # thread. rclpy's handlers, which also shut the context down, come once the node is built:
+    # a node being built is finished with a working context (its log lines reach /rosout).
     interrupted = []
-    spinning = []
 
-    def on_sigint(signum: int, frame: object) -> None:
+    def on_stop(signum: int, frame: object) -> None:
         interrupted.append(signum)
-        # A second SIGINT (a terminal's Ctrl-C and launch's own) must not land in a __del__
-        # on the way out, where Python can only print it as 'Exception ignored'.
+        # A second SIGINT (a terminal's Ctrl-C and launch's own) changes nothing.
         signal.signal(signal.SIGINT, signal.SIG_IGN)
-        # Once spinning, the loop below sees the flag within SPIN_WAIT_S: a KeyboardInterrupt
-        # there could land inside rclpy's own objects (a Task half-built by the executor).
-        if not spinning:
-            raise KeyboardInterrupt
 
-    signal.signal(signal.SIGINT, on_sigint)
-    rclpy.init(args=args)
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, on_stop)
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     # Before the node: an executor created after a signal has shut the context down fails
     # half-built and prints a traceback from its __del__.
     executor = BlockingGroupExecutor()
@@ -85,10 +84,13 @@ def run_node(make_node: Callable[[], N], args: Optional[list[str]], logger_name:
             try:
                 node = make_node()
             except startup_errors as error:
+                if interrupted:
+                    return 0
                 if on_startup_error is not None:
                     return on_startup_error(error)
                 get_logger(logger_name).error(f'cannot start: {error}')
                 return 1
+            install_signal_handlers(SignalHandlerOptions.ALL)
             blocking_group = getattr(node, 'blocking_group', None)
             if blocking_group is not None:
                 executor.add_blocking_group(blocking_group)
@@ -96,7 +98,6 @@ def run_node(make_node: Callable[[], N], args: Optional[list[str]], logger_name:
             # Not executor.spin(): it may sleep on in its wait set after a signal has shut the
             # context down (docs/design.md); a bounded wait notices the shutdown within
             # SPIN_WAIT_S whatever happens.
-            spinning.append(True)
             while rclpy.ok() and not interrupted:
                 message = failure(node) if failure is not None else None
                 if message is not None:
@@ -105,19 +106,14 @@ def run_node(make_node: Callable[[], N], args: Optional[list[str]], logger_name:
                 executor.spin_once(timeout_sec=SPIN_WAIT_S)
         except Exception as error:
             # SIGINT/SIGTERM shut the context down; during start-up or mid-spin that surfaces
-            # as an RCLError, which is no error of ours. During start-up the KeyboardInterrupt
-            # of that same SIGINT often follows inside this handler, so the outer try catches
-            # it; raised while rclpy's C++ turns an argument into Python, it comes out as
-            # pybind11's RuntimeError 'Unable to convert call argument': a stop all the same.
+            # as an RCLError, which is no error of ours.
             if rclpy.ok() and not interrupted:
                 get_logger(logger_name).error(f'stopped: {error}')
                 raise
-    except (KeyboardInterrupt, ExternalShutdownException):
+    except ExternalShutdownException:
         pass
     finally:
-        # Teardown is short and bounded. ``ros2 launch`` and ``ros2 run`` send their own SIGINT
-        # right after the terminal's, and that second one must not interrupt it with a
-        # KeyboardInterrupt traceback (launch would then report the node as died).
+        # Teardown is short and bounded: no later signal may cut it short.
         ignore_stop_signals()
         try:
             executor.shutdown()

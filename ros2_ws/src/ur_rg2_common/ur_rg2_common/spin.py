@@ -9,7 +9,7 @@ import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.logging import get_logger
 from rclpy.node import Node
-from rclpy.signals import SignalHandlerOptions, install_signal_handlers
+from rclpy.signals import SignalHandlerOptions
 
 from ur_rg2_common.executors import BlockingGroupExecutor
 
@@ -63,8 +63,8 @@ def run_node(make_node: Callable[[], N], args: Optional[list[str]], logger_name:
     # SIGINT (how ros2 launch and ros2 run stop a node, even one started with SIGINT ignored)
     # and SIGTERM set a flag that the loop below sees within SPIN_WAIT_S. A KeyboardInterrupt
     # could land anywhere: inside rclpy's own objects, or in a constructor that has started a
-    # thread. rclpy's handlers, which also shut the context down, come once the node is built:
-    # a node being built is finished with a working context (its log lines reach /rosout).
+    # thread. Not rclpy's handlers either: they shut the context down at once, under the
+    # callback or constructor that is running (its log lines and messages would fail).
     interrupted = []
 
     def on_stop(signum: int, frame: object) -> None:
@@ -90,7 +90,6 @@ def run_node(make_node: Callable[[], N], args: Optional[list[str]], logger_name:
                     return on_startup_error(error)
                 get_logger(logger_name).error(f'cannot start: {error}')
                 return 1
-            install_signal_handlers(SignalHandlerOptions.ALL)
             blocking_group = getattr(node, 'blocking_group', None)
             if blocking_group is not None:
                 executor.add_blocking_group(blocking_group)
@@ -116,6 +115,9 @@ def run_node(make_node: Callable[[], N], args: Optional[list[str]], logger_name:
         # Teardown is short and bounded: no later signal may cut it short.
         ignore_stop_signals()
         try:
+            # First, so that callbacks still running on worker threads (a pick waiting for the
+            # arm) see it and end; the executor's shutdown waits for them.
+            rclpy.try_shutdown()
             executor.shutdown()
             if node is not None:
                 node.destroy_node()

@@ -28,6 +28,18 @@ def test_freed_image_buffers_are_reused():
     assert page_faults_per_image() < 5
 
 
+def stopped_cleanly(code: str) -> subprocess.CompletedProcess:
+    """Run a node process's ``code``; return it once it has exited 0 with no error printed."""
+    env = dict(os.environ, ROS_DOMAIN_ID=str(next_domain_id()),
+               ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+    done = subprocess.run([sys.executable, '-c', code], env=env, capture_output=True,
+                          text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    for error in ('Traceback', 'Exception ignored', 'stopped:', 'Failed to publish'):
+        assert error not in done.stderr, done.stderr
+    return done
+
+
 NODE_STOPPED_IN_A_CALLBACK = """
 import os, signal, sys, time
 from rclpy.node import Node
@@ -50,14 +62,8 @@ sys.exit(run_node(Taker, None, 'taker'))
 def test_a_sigint_mid_callback_lets_it_finish_then_stops_cleanly():
     # A KeyboardInterrupt raised mid-spin could land inside rclpy's own objects, a Task the
     # executor was building, which then printed 'Exception ignored ... AttributeError'.
-    env = dict(os.environ, ROS_DOMAIN_ID=str(next_domain_id()),
-               ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
-    done = subprocess.run([sys.executable, '-c', NODE_STOPPED_IN_A_CALLBACK], env=env,
-                          capture_output=True, text=True, timeout=60)
-    assert done.returncode == 0, done.stderr
+    done = stopped_cleanly(NODE_STOPPED_IN_A_CALLBACK)
     assert done.stderr.count('callback finished') == 1, done.stderr
-    assert 'Traceback' not in done.stderr and 'Exception ignored' not in done.stderr, done.stderr
-    assert 'stopped:' not in done.stderr and 'Failed to publish' not in done.stderr, done.stderr
 
 
 NODE_STOPPED_WHILE_BUILT = """
@@ -85,10 +91,5 @@ sys.exit(run_node(Builder, None, 'builder'))
 
 
 def test_a_sigint_while_the_node_is_built_finishes_it_then_destroys_it():
-    env = dict(os.environ, ROS_DOMAIN_ID=str(next_domain_id()),
-               ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
-    done = subprocess.run([sys.executable, '-c', NODE_STOPPED_WHILE_BUILT], env=env,
-                          capture_output=True, text=True, timeout=60)
-    assert done.returncode == 0, done.stderr
+    done = stopped_cleanly(NODE_STOPPED_WHILE_BUILT)
     assert 'built' in done.stderr and done.stdout.count('destroyed') == 1, done
-    assert 'Traceback' not in done.stderr and 'Failed to publish' not in done.stderr, done.stderr

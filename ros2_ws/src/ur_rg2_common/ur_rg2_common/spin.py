@@ -75,8 +75,6 @@ def run_node(make_node: Callable[[], N], args: Optional[list[str]], logger_name:
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, on_stop)
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    # Before the node: an executor created after a signal has shut the context down fails
-    # half-built and prints a traceback from its __del__.
     executor = BlockingGroupExecutor()
     node = None
     try:
@@ -94,9 +92,8 @@ def run_node(make_node: Callable[[], N], args: Optional[list[str]], logger_name:
             if blocking_group is not None:
                 executor.add_blocking_group(blocking_group)
             executor.add_node(node)
-            # Not executor.spin(): it may sleep on in its wait set after a signal has shut the
-            # context down (docs/design.md); a bounded wait notices the shutdown within
-            # SPIN_WAIT_S whatever happens.
+            # Not executor.spin(): a bounded wait notices a stop within SPIN_WAIT_S whatever
+            # happens (docs/design.md).
             while rclpy.ok() and not interrupted:
                 message = failure(node) if failure is not None else None
                 if message is not None:
@@ -104,8 +101,8 @@ def run_node(make_node: Callable[[], N], args: Optional[list[str]], logger_name:
                     return 1
                 executor.spin_once(timeout_sec=SPIN_WAIT_S)
         except Exception as error:
-            # SIGINT/SIGTERM shut the context down; during start-up or mid-spin that surfaces
-            # as an RCLError, which is no error of ours.
+            # After a stop signal or an outside shutdown, an error on the way out is no error
+            # of ours.
             if rclpy.ok() and not interrupted:
                 get_logger(logger_name).error(f'stopped: {error}')
                 raise

@@ -31,9 +31,14 @@ class WriteBacklog:
             return True
 
     def written(self, size: int) -> None:
-        """Release a message's bytes once the writer has written (or discarded) it."""
+        """Release a message's bytes once the writer has taken it from the queue."""
         with self._lock:
             self._held -= size
+
+    @property
+    def total_dropped(self) -> int:
+        """Return the messages dropped, all topics together."""
+        return sum(self.dropped.values())
 
     @property
     def held(self) -> int:
@@ -42,5 +47,5 @@ class WriteBacklog:
 
     def summary(self) -> str:
         """Return the dropped messages per topic, e.g. ``12 (/camera/image_raw: 12)``."""
-        total = sum(self.dropped.values())
-        return f'{total} ({", ".join(f"{t}: {n}" for t, n in sorted(self.dropped.items()))})'
+        topics = ', '.join(f'{t}: {n}' for t, n in sorted(self.dropped.items()))
+        return f'{self.total_dropped} ({topics})'

@@ -211,7 +211,7 @@ class RecorderNode(Node):
                 f'({written / 1e6:.1f} MB written), {rate:.1f} MB/s, '
                 f'{len([s for s in self._recorded.values() if s])} topics')
         if self._backlog.dropped:
-            line += f', {sum(self._backlog.dropped.values())} dropped'
+            line += f', {self._backlog.total_dropped} dropped'
         if self._tty:
             sys.stderr.write(f'\r{line}   ')
             sys.stderr.flush()

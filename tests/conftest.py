@@ -2,11 +2,13 @@
 
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
+import faulthandler
 import fcntl
 import itertools
 import math
 import os
 from pathlib import Path
+import sys
 import tempfile
 import threading
 import time
@@ -72,6 +74,8 @@ def wait_for(predicate: Callable[[], object], timeout: float, what: str,
         if value:
             return value
         if time.monotonic() > deadline:
+            # Where every thread was (the executors' too) goes to the failure's captured stderr.
+            faulthandler.dump_traceback(file=sys.stderr, all_threads=True)
             raise AssertionError(f'timed out after {timeout:.1f} s waiting for {what}')
         time.sleep(interval)
 

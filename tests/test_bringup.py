@@ -167,3 +167,39 @@ def test_run_help_and_bad_arguments():
                              capture_output=True, text=True, timeout=60)
     assert refused.returncode == 2
     assert "'ball_radius' is not an argument of graph.launch.py" in refused.stderr
+
+
+# A launch whose one action sends the process a SIGINT, then goes on working in Python.
+_INTERRUPTED_ACTION = """
+import os, signal, time
+from launch import LaunchDescription, LaunchService
+from launch.actions import ExecuteProcess, OpaqueFunction, RegisterEventHandler
+from launch.event_handlers import OnProcessStart, OnShutdown
+from ur_rg2_bringup.launch_graph import run_service
+
+def interrupted(_context):
+    os.kill(os.getpid(), signal.SIGINT)
+    end = time.monotonic() + 0.3
+    while time.monotonic() < end:
+        pass
+    print('the action finished', flush=True)
+
+sleeper = ExecuteProcess(cmd=['sleep', '60'])
+service = LaunchService(noninteractive=True)
+service.include_launch_description(LaunchDescription([
+    RegisterEventHandler(OnShutdown(on_shutdown=lambda event, _: print(event.reason))),
+    sleeper,
+    RegisterEventHandler(OnProcessStart(target_action=sleeper,
+                                        on_start=[OpaqueFunction(function=interrupted)])),
+]))
+print('exit', run_service(service), flush=True)
+"""
+
+
+def test_a_sigint_stops_launch_without_breaking_the_action_it_came_in():
+    ran = subprocess.run([sys.executable, '-c', _INTERRUPTED_ACTION], capture_output=True,
+                         text=True, timeout=60)
+    assert ran.returncode == 0, ran.stderr
+    printed = [line for line in ran.stdout.splitlines() if not line.startswith('[')]  # ours
+    assert printed == ['the action finished', 'ctrl-c (SIGINT)', 'exit 0'], ran.stdout + ran.stderr
+    assert 'Traceback' not in ran.stderr, ran.stderr

@@ -14,6 +14,7 @@ from collections.abc import Sequence
 import logging
 import os
 import re
+import signal
 import sys
 
 from ament_index_python.packages import get_package_share_directory
@@ -57,6 +58,21 @@ def quiet_screen() -> str:
     return os.path.join(launch.logging.launch_config.log_dir, 'launch.log')
 
 
+def run_service(service: LaunchService) -> int:
+    """Run ``service``; a SIGINT reaches launch's own handler, never as a KeyboardInterrupt.
+
+    Launch hears a signal through the wakeup file descriptor Python writes for every signal it
+    catches, and ignores the KeyboardInterrupt Python's default SIGINT handler raises too; but
+    that exception first aborts whatever was running (an action half done, a weakref callback
+    printing its traceback). A handler that does nothing leaves the signal to launch alone.
+    """
+    previous = signal.signal(signal.SIGINT, lambda _signum, _frame: None)
+    try:
+        return service.run()
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 def run_graph(launch_arguments: Sequence[str], quiet: bool = False) -> int:
     """Run the graph until it stops; return 1 (saying why last) if a node ended it, else 0."""
     log_file = quiet_screen() if quiet else None
@@ -72,7 +88,7 @@ def run_graph(launch_arguments: Sequence[str], quiet: bool = False) -> int:
             PythonLaunchDescriptionSource(graph_launch_file()),
             launch_arguments=[tuple(argument.split(':=', 1)) for argument in launch_arguments]),
     ]))
-    returncode = service.run()
+    returncode = run_service(service)
     if log_file:
         print(f'bringup: graph stopped; its log: {log_file}', file=sys.stderr, flush=True)
     if reasons and reasons[0] not in NORMAL_ENDS:

@@ -46,7 +46,8 @@ def _scored(shots, detectors: dict) -> dict[str, dict]:
             for name, detector in detectors.items():
                 result = results[name]
                 start = cv2.getTickCount()
-                position = locate_first(detector.detect(shot.rgb, shot.k), shot.depth, shot.k)
+                position = locate_first(detector.detect(shot.rgb, shot.k, shot.depth), shot.depth,
+                                         shot.k)
                 result['times'].append(1000 * (cv2.getTickCount() - start)
                                        / cv2.getTickFrequency())
                 result['balls'] += counted

@@ -49,8 +49,8 @@ def main() -> None:
     tiles = []
     for shot in hard_scenes(args.count, args.seed):
         rgb = shot.rgb.copy()
-        _draw(rgb, color.detect(shot.rgb, shot.k), shot.depth, shot.k, COLOR, False)
-        _draw(rgb, learned.detect(shot.rgb, shot.k), shot.depth, shot.k, LEARNED, True)
+        _draw(rgb, color.detect(shot.rgb, shot.k, shot.depth), shot.depth, shot.k, COLOR, False)
+        _draw(rgb, learned.detect(shot.rgb, shot.k, shot.depth), shot.depth, shot.k, LEARNED, True)
         tile = cv2.resize(rgb, (TILE, TILE * 3 // 4), interpolation=cv2.INTER_AREA)
         label = shot.name.split(': ')[1]
         cv2.putText(tile, label, (6, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 3)

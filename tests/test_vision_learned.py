@@ -26,7 +26,14 @@ from ur_rg2_common.camera_pose import optical_rotation
 from ur_rg2_common.contract import IMAGE_QOS
 from ur_rg2_vision import scene_dataset
 from ur_rg2_vision.dataset import COLOR_GROUPS, sphere_box, yolo_label
-from ur_rg2_vision.learned import MODEL_FILE, SETTINGS_FILE, BallModel, ModelError, box_detection
+from ur_rg2_vision.learned import (
+    MODEL_FILE,
+    SETTINGS_FILE,
+    BallModel,
+    ModelError,
+    box_detection,
+    depth_relief,
+)
 from ur_rg2_vision.localize import locate_ball
 from ur_rg2_vision.ros_image import rgb_to_image
 from ur_rg2_vision.scenes import detector_scenes, hard_scenes, plain_to_the_eye
@@ -59,13 +66,37 @@ def test_a_box_around_a_ball_gives_its_centre_through_the_depth():
     assert len(errors) >= 8 and np.median(errors) < 0.003, errors
 
 
-def test_short_training_exports_a_model_evaluate_reads_and_vision_serves(tmp_path, ros_graph):
+def test_the_depth_relief_shows_a_ball_and_not_a_tilted_floor_or_holes():
+    rows, cols = np.mgrid[0:480, 0:640].astype(np.float32)
+    floor = 1.5 + 0.002 * rows - 0.0005 * cols  # a tilted plane, m
+    ball = floor.copy()
+    inside = (cols - 320) ** 2 + (rows - 240) ** 2 <= 16 ** 2  # a ball-sized bump
+    ball[inside] -= 0.05  # 5 cm nearer than the floor around it
+    holey = np.full((480, 640), 1.5, np.float32)
+    holey[100:140, 100:140] = 0.0  # no return
+    holey[300:310, 500:520] = np.inf
+    holey[50:60, 400:410] = np.nan
+    size = (240, 320)
+    core = (slice(40, 200), slice(40, 280))  # 5 sigmas from the border
+    assert np.abs(depth_relief(floor, size)[core]).max() < 0.01
+    assert depth_relief(ball, size)[120, 160] < -0.5
+    relief = depth_relief(holey, size)
+    assert relief.dtype == np.float32 and np.isfinite(relief).all()
+    assert np.abs(relief).max() < 0.01  # 0 in the holes, the floor around them flat
+    wide = depth_relief(np.ones((360, 640), np.float32), size)  # letterboxed as the colour
+    assert (wide[:30] == 0).all() and (wide[-30:] == 0).all()
+
+
+@pytest.mark.parametrize('depth', [False, True], ids=['rgb', 'rgb+depth'])
+def test_short_training_exports_a_model_evaluate_reads_and_vision_serves(tmp_path, ros_graph,
+                                                                          depth):
     data, model = tmp_path / 'data', tmp_path / 'model'
     scene_dataset.main(['--count', '12', '--out', str(data), '--seed', '3',
                         '--val-fraction', '0.25'])
+    depth_flag = ['--depth'] if depth else []
     trained = subprocess.run(
         [str(BIN / 'train_detector'), '--data', str(data), '--out', str(model), '--epochs', '2',
-         '--imgsz', '160', '--crop', '96', '--batch', '4'],
+         '--imgsz', '160', '--crop', '96', '--batch', '4', *depth_flag],
         capture_output=True, text=True, timeout=300)
     assert trained.returncode == 0, trained.stderr[-3000:]
     assert re.search(r'train_detector: 2 epochs in [\d.]+ min \(load', trained.stdout)
@@ -75,10 +106,12 @@ def test_short_training_exports_a_model_evaluate_reads_and_vision_serves(tmp_pat
     assert loaded.input_size == (120, 160)  # 4:3 frames
     settings = json.loads((model / SETTINGS_FILE).read_text())
     assert 'Apache-2.0' in settings['licence'] and 'ultralytics' not in json.dumps(settings)
+    assert settings['inputs'] == (['rgb', 'depth_relief'] if depth else ['rgb'])
+    assert loaded.needs_depth == depth
     further = subprocess.run(  # --init: on from the model, which it records
         [str(BIN / 'train_detector'), '--data', str(data), '--out', str(tmp_path / 'further'),
-         '--epochs', '1', '--imgsz', '160', '--crop', '96', '--batch', '4', '--init',
-         str(model)], capture_output=True, text=True, timeout=300)
+         '--epochs', '1', '--imgsz', '160', '--crop', '96', '--batch', '4', *depth_flag,
+         '--init', str(model)], capture_output=True, text=True, timeout=300)
     assert further.returncode == 0, further.stderr[-3000:]
     record = json.loads((tmp_path / 'further' / SETTINGS_FILE).read_text())['training']
     assert record['init']['training'] == settings['training'] and record['epochs'] == 1
@@ -115,14 +148,23 @@ def test_short_training_exports_a_model_evaluate_reads_and_vision_serves(tmp_pat
     depth = Image(header=header, height=480, width=640, encoding='32FC1', step=640 * 4,
                   data=shot.depth.astype(np.float32).tobytes())
 
+    # Every other frame with a depth image of another size: the model cannot take it; the node
+    # says so and goes on (each frame's ball/image has its stamp: odd seconds, the bad ones).
+    small = Image(header=header, height=120, width=160, encoding='32FC1', step=160 * 4,
+                  data=shot.depth[::4, ::4].astype(np.float32).tobytes())
+
     def fed_and_served() -> bool:
         header.stamp.sec += 1
-        for publisher, msg in zip(publishers, (info, rgb_to_image(shot.rgb, header), depth)):
+        fed = (info, rgb_to_image(shot.rgb, header), small if header.stamp.sec % 2 else depth)
+        for publisher, msg in zip(publishers, fed):
             msg.header = header
             publisher.publish(msg)
-        return bool(images)
+        stamps = [image.header.stamp.sec for image in images]
+        bad = [sec for sec in stamps if sec % 2]
+        return bool(bad) and any(sec > bad[0] and not sec % 2 for sec in stamps)
 
-    wait_for(fed_and_served, TIMEOUT, 'ball/image from the learned detector', interval=0.1)
+    wait_for(fed_and_served, TIMEOUT, 'ball/image of a frame after one with a bad '
+             'depth image', interval=0.1)
 
 
 def test_shipped_model_finds_a_blue_ball_and_no_red_cube_or_flat_disc(ros_graph, tmp_path):

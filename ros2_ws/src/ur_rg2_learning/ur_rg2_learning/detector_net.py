@@ -7,7 +7,8 @@ and the box's log size. :class:`Exported` decodes that in the graph, so the ONNX
 ``1 x 5 x N`` rows ``cx cy w h score`` in input pixels (``score`` 0 except at a heatmap's
 local maximum): the same layout as a YOLOv8 export with one class, which
 :class:`ur_rg2_vision.learned.BallModel` reads. Written for this project (Apache-2.0); no
-pretrained weights.
+pretrained weights. A fourth input channel, the depth's relief
+(:func:`ur_rg2_vision.learned.depth_relief`), shows what stands out of its surroundings.
 """
 
 from __future__ import annotations
@@ -30,12 +31,16 @@ def _conv(cin: int, cout: int, stride: int = 1) -> nn.Sequential:
 
 
 class BallNet(nn.Module):
-    """Backbone, pyramid and head; ``forward`` gives the raw 5-channel map at stride 8."""
+    """Backbone, pyramid and head; ``forward`` gives the raw 5-channel map at stride 8.
 
-    def __init__(self) -> None:
+    ``in_channels``: 3 (RGB) or 4 (RGB and the depth's relief,
+    :func:`ur_rg2_vision.learned.depth_relief`).
+    """
+
+    def __init__(self, in_channels: int = 3) -> None:
         super().__init__()
         w = WIDTHS
-        self.stem = nn.Sequential(_conv(3, w[0], 2), _conv(w[0], w[1], 2))
+        self.stem = nn.Sequential(_conv(in_channels, w[0], 2), _conv(w[0], w[1], 2))
         self.down = nn.ModuleList(
             nn.Sequential(_conv(w[i], w[i + 1], 2), _conv(w[i + 1], w[i + 1]))
             for i in range(1, len(w) - 1))
@@ -50,7 +55,7 @@ class BallNet(nn.Module):
             self.head[-1].bias[0] = -math.log((1 - 0.01) / 0.01)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """Return the raw map (B, 5, H/8, W/8) of a batch of RGB images scaled to 0-1."""
+        """Return the raw map (B, 5, H/8, W/8) of a batch of images (RGB 0-1, [relief])."""
         features = []
         x = self.stem(x)
         for stage in self.down:
@@ -66,14 +71,14 @@ class BallNet(nn.Module):
 
 
 class Exported(nn.Module):
-    """The network with its decoding, as exported: RGB 0-1 in, ``1 x 5 x N`` out."""
+    """The network with its decoding, as exported: RGB 0-1 [and relief] in, ``1 x 5 x N`` out."""
 
     def __init__(self, net: BallNet) -> None:
         super().__init__()
         self.net = net
 
     def forward(self, images: torch.Tensor) -> torch.Tensor:
-        """Return (B, 5, N) rows cx cy w h score of a batch of RGB images scaled to 0-1."""
+        """Return (B, 5, N) rows cx cy w h score of a batch of images, as BallNet takes them."""
         out = self.net(images)
         heat = torch.sigmoid(out[:, :1])
         peaks = heat * (functional.max_pool2d(heat, 3, 1, 1) == heat).to(heat.dtype)
@@ -141,7 +146,8 @@ def load_exported(net: BallNet, path: str, images: torch.Tensor) -> None:
 
     The export folds each batch norm into its convolution; each one is set back so that the
     network computes what the ONNX model computes (exactly in eval mode): its statistics
-    measured on ``images`` (a batch, RGB 0-1) and a scale and shift that undo them.
+    measured on ``images`` (a batch, as the network takes them) and a scale and shift that
+    undo them.
     Raises ``ValueError`` when the file is not an export of this network.
     """
     import onnx

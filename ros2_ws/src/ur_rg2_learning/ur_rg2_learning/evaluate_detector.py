@@ -4,11 +4,13 @@ Runs the exported ONNX model as the ``vision`` node does (ONNX Runtime, no torch
 with ``--detector color`` the colour detector, on the validation images of a data set (its
 ``data.yaml``; ``--split train`` for the others). First the network alone: a box over the
 model's threshold is right when it overlaps a labelled ball's box by IoU >= 0.5; every image
-holds at most one ball. Then the node's whole pipeline (the detector's candidates, the first
-that the depth confirms as a sphere gives the 3D centre): right when that centre is within the
-ball's radius of the true one. Each overall and per colour group (saturated, pastel, white,
-grey, dark, patterned); the pipeline and the groups need the depth and meta files that
-``scripts/detector-data`` (:mod:`ur_rg2_vision.scene_dataset`) writes beside the images.
+holds at most one ball. A model that sees the depth too (``detector.json``'s ``inputs``) is fed
+the ``depth/`` image beside each one. Then the node's whole pipeline (the detector's
+candidates, the first that the depth confirms as a sphere gives the 3D centre): right when that
+centre is within the ball's radius of the true one. Each overall and per colour group
+(saturated, pastel, white, grey, dark, patterned); the pipeline and the groups need the depth
+and meta files that ``scripts/detector-data`` (:mod:`ur_rg2_vision.scene_dataset`) writes
+beside the images.
 ``--thresholds T1,T2,...`` instead prints both overall at each of these score thresholds: to
 choose the node's threshold on a validation split, not on the held-out one.
 """
@@ -109,7 +111,8 @@ def label_box(path: Path, width: int, height: int) -> tuple[float, ...] | None:
             (cy + h / 2) * height)
 
 
-def color_boxes(detector: BallDetector, rgb: np.ndarray) -> list[tuple[float, ...]]:
+def color_boxes(detector: BallDetector, rgb: np.ndarray, _depth: np.ndarray | None = None
+                ) -> list[tuple[float, ...]]:
     """Return the colour detector's balls as boxes with their coverage as the score."""
     return [(d.u - d.radius, d.v - d.radius, d.u + d.radius, d.v + d.radius, d.coverage)
             for d in detector.detect(rgb)]
@@ -117,10 +120,10 @@ def color_boxes(detector: BallDetector, rgb: np.ndarray) -> list[tuple[float, ..
 
 def evaluate(boxes, pairs: list[tuple[Path, Path]], groups: dict[str, Scores] | None = None
              ) -> Scores:
-    """Score ``boxes(rgb) -> [(u0, v0, u1, v1, score)]`` on (image, label) pairs.
+    """Score ``boxes(rgb, depth) -> [(u0, v0, u1, v1, score)]`` on (image, label) pairs.
 
-    ``groups``: also score each image in its colour group's entry (from the sample's meta),
-    added when missing.
+    ``depth``: the sample's depth image (metres), None when it has none. ``groups``: also
+    score each image in its colour group's entry (from the sample's meta), added when missing.
     """
     scores = Scores(ranked=[])
     for image_path, label_path in pairs:
@@ -131,7 +134,7 @@ def evaluate(boxes, pairs: list[tuple[Path, Path]], groups: dict[str, Scores] | 
             meta = sample_meta(image_path)
             if meta is not None:
                 counts.append(groups.setdefault(meta['group'], Scores(ranked=[])))
-        found = sorted(boxes(rgb), key=lambda b: -b[4])
+        found = sorted(boxes(rgb, read_depth(image_path)), key=lambda b: -b[4])
         for count in counts:
             count.images += 1
             count.balls += truth is not None
@@ -148,6 +151,17 @@ def evaluate(boxes, pairs: list[tuple[Path, Path]], groups: dict[str, Scores] | 
 def sample_path(image: Path, kind: str, suffix: str) -> Path:
     """Return the path of a sample's other file (``depth``, ``meta``: scene_dataset's)."""
     return Path(str(image.with_suffix(suffix)).replace('/images/', f'/{kind}/'))
+
+
+def read_depth(image: Path) -> np.ndarray | None:
+    """Return a sample's depth image in metres (inf: no return), None when it has none."""
+    path = sample_path(image, 'depth', '.png')
+    millimetres = cv2.imread(str(path), cv2.IMREAD_UNCHANGED) if path.is_file() else None
+    if millimetres is None:
+        return None
+    depth = millimetres.astype(np.float32) / 1000.0
+    depth[millimetres == 0] = np.inf
+    return depth
 
 
 def sample_meta(image: Path) -> dict | None:
@@ -178,18 +192,15 @@ def evaluate_pipeline(detector, pairs: list[tuple[Path, Path]],
     from ur_rg2_vision.localize import locate_ball
     total = Located(ranked=[])
     for image_path, _ in pairs:
-        meta = sample_meta(image_path)
-        depth_path = sample_path(image_path, 'depth', '.png')
-        if meta is None or not depth_path.is_file():
+        meta, depth = sample_meta(image_path), read_depth(image_path)
+        if meta is None or depth is None:
             continue
         rgb = cv2.cvtColor(cv2.imread(str(image_path)), cv2.COLOR_BGR2RGB)
-        depth = cv2.imread(str(depth_path), cv2.IMREAD_UNCHANGED).astype(np.float32) / 1000.0
-        depth[depth == 0] = np.inf
         k = np.asarray(meta['k'], dtype=float)
         centre = None if meta['centre'] is None else np.asarray(meta['centre'])
         counted = centre is not None and meta['visible'] >= MIN_VISIBLE
         position, score = None, 0.0
-        for detection in detector.detect(rgb, k):
+        for detection in detector.detect(rgb, k, depth):
             position = locate_ball(detection, depth, k)
             if position is not None:
                 score = detection.coverage
@@ -246,12 +257,17 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     if args.detector == 'color':
         detector = BallDetector()
-        boxes = lambda rgb: color_boxes(detector, rgb)  # noqa: E731
+        boxes = lambda rgb, depth: color_boxes(detector, rgb)  # noqa: E731
     else:
         try:
             model = BallModel(args.model)
         except ModelError as error:
             print(f'evaluate_detector: {error}', file=sys.stderr)
+            return 2
+        if model.needs_depth and read_depth(pairs[0][0]) is None:
+            print(f'evaluate_detector: the model sees the depth too, and {args.data} has no '
+                  'depth/ images beside its images (scripts/detector-data writes them)',
+                  file=sys.stderr)
             return 2
         boxes = model.boxes
         detector = LearnedBallDetector(model, args.min_radius_px)

@@ -3,9 +3,11 @@
 Trains :class:`ur_rg2_learning.detector_net.BallNet` (a compact CenterNet written for this
 project in plain torch, Apache-2.0; no pretrained weights, no detection library) from scratch
 on the CPU, or further from a model it exported (``--init``), on the data set's ``data.yaml``
-(YOLO layout; ``--min-contrast`` drops the balls that do not stand out). Frames are scaled to
-the input size (``--imgsz`` wide, 4:3) and held in memory; each step trains on random crops of
-them (``--crop``; the network is fully convolutional), flipped, with their colour channels
+(YOLO layout; ``--min-contrast`` drops the balls that do not stand out). With ``--depth`` the
+network also sees each frame's depth relief (:func:`ur_rg2_vision.learned.depth_relief`, from
+the ``depth/`` images ``scripts/detector-data`` writes) as a fourth channel. Frames are scaled
+to the input size (``--imgsz`` wide, 4:3) and held in memory; each step trains on random crops
+of them (``--crop``; the network is fully convolutional), flipped, with their colour channels
 shuffled and their brightness and contrast changed. The learning rate follows a cosine over
 ``--minutes`` (a time budget: the machine may be shared) or ``--epochs``, whichever ends
 first. After each epoch the network is scored on the validation frames; the best epoch (F1 at
@@ -32,10 +34,17 @@ import time
 
 import cv2
 import numpy as np
-from ur_rg2_vision.learned import MODEL_FILE, SETTINGS_FILE, BallModel
+from ur_rg2_vision.learned import (
+    DEPTH_RELIEF,
+    MODEL_FILE,
+    RGB,
+    SETTINGS_FILE,
+    BallModel,
+    depth_relief,
+)
 
 from ur_rg2_learning.actor import write_atomically
-from ur_rg2_learning.evaluate_detector import evaluate, label_box, split_images
+from ur_rg2_learning.evaluate_detector import evaluate, label_box, read_depth, split_images
 
 # A box is a ball from this peak score on while training; the node's threshold (in
 # detector.json) is then chosen on the validation split (best F1, see choose_threshold).
@@ -78,25 +87,48 @@ def plain_pairs(pairs: list[tuple[Path, Path]], min_contrast: float
     return kept
 
 
-def load_split(pairs: list[tuple[Path, Path]], size: tuple[int, int]
-               ) -> tuple[np.ndarray, list[tuple[float, float, float, float] | None]]:
-    """Return a split's frames scaled to ``size`` (height, width), uint8 RGB, and boxes."""
+def load_split(pairs: list[tuple[Path, Path]], size: tuple[int, int], depth: bool = False
+               ) -> tuple[np.ndarray, np.ndarray | None,
+                          list[tuple[float, float, float, float] | None]]:
+    """Return a split's frames scaled to ``size`` (height, width): uint8 RGB, reliefs, boxes.
+
+    Reliefs (float16, :func:`depth_relief`) with ``depth``, else None; OSError when a frame
+    or its depth image cannot be read.
+    """
     height, width = size
     images = np.empty((len(pairs), height, width, 3), np.uint8)
+    reliefs = np.empty((len(pairs), height, width), np.float16) if depth else None
     boxes = []
     for i, (image, label) in enumerate(pairs):
         bgr = cv2.imread(str(image))
         if bgr is None:
             raise OSError(f'cannot read {image}')
         images[i] = cv2.resize(bgr, (width, height), interpolation=cv2.INTER_AREA)[..., ::-1]
+        if reliefs is not None:
+            metres = read_depth(image)
+            if metres is None:
+                raise OSError(f'no depth image for {image} (scripts/detector-data writes them)')
+            reliefs[i] = depth_relief(metres, size)
         boxes.append(label_box(label, width, height))
-    return images, boxes
+    return images, reliefs, boxes
+
+
+def network_input(rgb: np.ndarray, relief: np.ndarray | None) -> np.ndarray:
+    """Return a frame (RGB 0-255) as the network takes it: float32 RGB 0-1 [and the relief]."""
+    channels = [rgb.astype(np.float32) / 255.0]
+    if relief is not None:
+        channels.append(relief[..., None].astype(np.float32))
+    return np.concatenate(channels, axis=2)
 
 
 def augment(rng: np.random.Generator, image: np.ndarray,
-            box: tuple[float, float, float, float] | None, crop: tuple[int, int]
+            box: tuple[float, float, float, float] | None, crop: tuple[int, int],
+            relief: np.ndarray | None = None
             ) -> tuple[np.ndarray, tuple[float, float, float, float] | None]:
-    """Return a random crop of a frame (often about its ball) with its clipped box."""
+    """Return a random crop of a frame (often about its ball) with its clipped box.
+
+    The crop as the network takes it (:func:`network_input`), with ``relief`` when given.
+    """
     height, width = image.shape[:2]
     ch, cw = crop
     if box is not None and rng.uniform() < 0.7:
@@ -106,6 +138,7 @@ def augment(rng: np.random.Generator, image: np.ndarray,
     else:
         x0, y0 = int(rng.integers(0, width - cw + 1)), int(rng.integers(0, height - ch + 1))
     patch = image[y0:y0 + ch, x0:x0 + cw]
+    relief = None if relief is None else relief[y0:y0 + ch, x0:x0 + cw]
     if box is not None:
         u0, v0 = max(box[0] - x0, 0.0), max(box[1] - y0, 0.0)
         u1, v1 = min(box[2] - x0, float(cw)), min(box[3] - y0, float(ch))
@@ -114,11 +147,12 @@ def augment(rng: np.random.Generator, image: np.ndarray,
         box = (u0, v0, u1, v1) if centre_in and u1 > u0 and v1 > v0 else None
     if rng.uniform() < 0.5:
         patch = patch[:, ::-1]
+        relief = None if relief is None else relief[:, ::-1]
         if box is not None:
             box = (cw - box[2], box[1], cw - box[0], box[3])
     patch = patch[..., rng.permutation(3)].astype(np.float32)
     patch = patch * rng.uniform(0.7, 1.3) + rng.uniform(-30, 30)
-    return np.clip(patch, 0, 255, out=patch), box
+    return network_input(np.clip(patch, 0, 255, out=patch), relief), box
 
 
 def plot_curve(rows: list[dict], png: Path) -> None:
@@ -170,7 +204,8 @@ def export(torch, net, size: tuple[int, int], directory: Path, settings: dict) -
     directory.mkdir(parents=True, exist_ok=True)
     temporary = directory / (MODEL_FILE + '.tmp')
     net.eval()
-    torch.onnx.export(Exported(net), (torch.zeros(1, 3, *size),), str(temporary),
+    channels = 2 + len(settings['inputs'])  # RGB, and the relief
+    torch.onnx.export(Exported(net), (torch.zeros(1, channels, *size),), str(temporary),
                       dynamo=False, opset_version=13, input_names=['images'],
                       output_names=['output'])
     os.replace(temporary, directory / MODEL_FILE)
@@ -202,6 +237,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--min-contrast', type=float, default=0.0, metavar='V',
                         help='drop the samples (train and val) whose ball is within V of its '
                         "surroundings' value (0-1; 0.05: dark on dark)")
+    parser.add_argument('--depth', action='store_true',
+                        help="the network also sees the depth's relief (a fourth channel; "
+                        "needs scene_dataset's depth/ images beside the data set's)")
     parser.add_argument('--threads', type=int, default=1,
                         help='torch CPU threads (one ran 10 times faster than two on the '
                         'shared 2-core machine)')
@@ -241,17 +279,24 @@ def main(argv: list[str] | None = None) -> int:
         dropped = counts - len(train_pairs) - len(val_pairs)
         print(f'train_detector: {dropped} samples dropped (ball contrast < '
               f'{args.min_contrast})', flush=True)
-    images, boxes = load_split(train_pairs, size)
+    try:
+        images, reliefs, boxes = load_split(train_pairs, size, args.depth)
+    except OSError as error:
+        print(f'train_detector: {error}', file=sys.stderr)
+        return 2
     val_check = [val_pairs[i] for i in np.linspace(0, len(val_pairs) - 1, min(
         VAL_FRAMES, len(val_pairs))).astype(int)]
     print(f'train_detector: {len(images)} training frames loaded in '
           f'{time.monotonic() - started:.0f} s', flush=True)
-    net = BallNet()
+    inputs = [RGB, DEPTH_RELIEF] if args.depth else [RGB]
+    net = BallNet(in_channels=2 + len(inputs))
     init_settings: dict = {}  # the detector.json of the model --init starts from
     if args.init:
         from ur_rg2_learning.detector_net import load_exported
-        calibration = torch.from_numpy(images[rng.choice(len(images), min(
-            64, len(images)), replace=False)].transpose(0, 3, 1, 2) / 255).float()
+        chosen = rng.choice(len(images), min(64, len(images)), replace=False)
+        calibration = torch.from_numpy(np.stack([
+            network_input(images[i], None if reliefs is None else reliefs[i])
+            for i in chosen]).transpose(0, 3, 1, 2))
         try:
             load_exported(net, str(Path(args.init) / MODEL_FILE), calibration)
             init_settings = json.loads((Path(args.init) / SETTINGS_FILE).read_text())
@@ -264,7 +309,8 @@ def main(argv: list[str] | None = None) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     scratch = out / '.epoch'  # each epoch's export, scored as the node runs it
-    settings = {'input_size': list(size), 'names': ['ball'], 'ball_class': 0, 'iou': IOU}
+    settings = {'input_size': list(size), 'names': ['ball'], 'ball_class': 0, 'iou': IOU,
+                'inputs': inputs}
     rows: list[dict] = []
     best, best_state = -1.0, None
     crop = (args.crop, args.crop)
@@ -280,9 +326,10 @@ def main(argv: list[str] | None = None) -> int:
             for group in optimizer.param_groups:
                 group['lr'] = args.lr * (0.02 + 0.98 * 0.5 * (1 + math.cos(
                     math.pi * min(progress, 1.0))))
-            batch = [augment(rng, images[i], boxes[i], crop)
+            batch = [augment(rng, images[i], boxes[i], crop,
+                             None if reliefs is None else reliefs[i])
                      for i in order[step * args.batch:(step + 1) * args.batch]]
-            x = torch.from_numpy(np.stack([b[0] for b in batch]).transpose(0, 3, 1, 2) / 255)
+            x = torch.from_numpy(np.stack([b[0] for b in batch]).transpose(0, 3, 1, 2))
             heat, regress, index = targets([b[1] for b in batch], *crop)
             focal, box = loss(net(x), torch.from_numpy(heat), torch.from_numpy(regress),
                               torch.from_numpy(index))

@@ -122,6 +122,8 @@ class BallDetector:
     It reuses its working images from frame to frame: one detector per thread.
     """
 
+    needs_depth = False  # colour alone finds the ball; the depth only locates it
+
     def __init__(self, color: HsvRange = RED,
                  min_radius_px: float = DEFAULT_MIN_RADIUS_PX) -> None:
         if not min_radius_px > 0:
@@ -142,10 +144,12 @@ class BallDetector:
         cv2.cvtColor(self._small, cv2.COLOR_RGB2HSV, dst=self._hsv)
         return self.color.hsv_mask(self._hsv, self._coarse)
 
-    def detect(self, rgb: np.ndarray, k: np.ndarray | None = None) -> list[Detection]:
+    def detect(self, rgb: np.ndarray, k: np.ndarray | None = None,
+               depth: np.ndarray | None = None) -> list[Detection]:
         """Return the balls in an RGB uint8 image, the most completely seen first.
 
         ``k``: the 3x3 camera matrix. Without it, outlines are taken as seen on the axis.
+        ``depth``: not used (the learned detector's ``detect`` may need it).
         """
         if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
             raise ValueError(f'expected an RGB uint8 image, got {rgb.dtype} {rgb.shape}')

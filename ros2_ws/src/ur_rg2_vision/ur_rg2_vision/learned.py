@@ -2,13 +2,15 @@
 
 A model directory (written by ``train_detector``, or the one shipped in this package) holds
 ``model.onnx`` and ``detector.json``: the input size ``[height, width]``, the class ``names``,
-the ``ball_class`` index and the ``confidence`` and ``iou`` (non-maximum suppression)
-thresholds. Output layout: 1 x (4 + classes) x N rows, or their transpose; boxes are (cx, cy,
-w, h) in input pixels of the letterboxed frame (scaled to fit, centred, grey around it), class
-scores 0-1. The shipped model (:mod:`ur_rg2_learning.detector_net`, a CenterNet trained by
-this project, Apache-2.0) gives that layout, as does an ultralytics YOLOv8 export: a user's own
-model of that layout drops in with a ``detector.json`` beside it. ONNX Runtime (MIT; imported
-only when a model is loaded) runs it on the CPU on one thread.
+the ``ball_class`` index, the ``confidence`` and ``iou`` (non-maximum suppression) thresholds
+and its ``inputs``: ``["rgb"]`` (the default), or ``["rgb", "depth_relief"]`` for a model that
+also sees the depth's relief (:func:`depth_relief`) as a fourth channel. Output layout: 1 x
+(4 + classes) x N rows, or their transpose; boxes are (cx, cy, w, h) in input pixels of the
+letterboxed frame (scaled to fit, centred, grey around it), class scores 0-1. The shipped
+model (:mod:`ur_rg2_learning.detector_net`, a CenterNet trained by this project, Apache-2.0)
+gives that layout, as does an ultralytics YOLOv8 export: a user's own model of that layout
+drops in with a ``detector.json`` beside it. ONNX Runtime (MIT; imported only when a model is
+loaded) runs it on the CPU on one thread.
 
 The network decides: each of its boxes over the threshold is a ball candidate, most confident
 first, as a :class:`~ur_rg2_vision.detector.Detection` like the colour detector's: the sphere
@@ -39,6 +41,36 @@ _MAX_CANDIDATES = 100  # boxes over the threshold kept for non-maximum suppressi
 _MAX_BOXES = 6  # the most confident boxes after it: bounds the work per frame
 _FIT_ITERATIONS = 6
 _BORDER_PX = 1.0  # a box side this near the image border is cut off there, not the outline
+RGB, DEPTH_RELIEF = 'rgb', 'depth_relief'  # a model's inputs (detector.json's "inputs")
+_RELIEF_SIGMA_PX = 8.0  # the smooth surface the relief is measured from, input pixels
+_RELIEF_GAIN = 20.0  # relief channel per metre (clipped to +-1: 5 cm and more)
+
+
+def depth_relief(depth: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Return a depth image's relief at a model's input ``size`` (height, width), float32.
+
+    ``depth`` in metres, 0, inf or NaN where there is none; letterboxed as
+    :meth:`BallModel.boxes` letterboxes the colour frame (0 around it). The relief is the
+    depth less its Gaussian blur (what stands out of the surface around it: a ball, a cube's
+    edge; a flat disc hardly), times 20 per metre, clipped to +-1; 0 where there is no depth.
+    """
+    height, width = size
+    rows, cols = depth.shape[:2]
+    scale = min(height / rows, width / cols)
+    inner_w, inner_h = round(cols * scale), round(rows * scale)
+    left, top = (width - inner_w) // 2, (height - inner_h) // 2
+    valid = (np.isfinite(depth) & (depth > 0)).astype(np.float32)
+    known = np.where(valid > 0, depth, 0.0).astype(np.float32)
+    known = cv2.resize(known, (inner_w, inner_h), interpolation=cv2.INTER_AREA)
+    valid = cv2.resize(valid, (inner_w, inner_h), interpolation=cv2.INTER_AREA)
+    # Blur of the known depth, normalised by how much of it is known (no holes pulled in).
+    weight = cv2.GaussianBlur(valid, (0, 0), _RELIEF_SIGMA_PX)
+    smooth = cv2.GaussianBlur(known, (0, 0), _RELIEF_SIGMA_PX) / np.maximum(weight, 1e-6)
+    mean = known / np.maximum(valid, 1e-6)
+    relief = np.where(valid > 0.5, (mean - smooth) * _RELIEF_GAIN, 0.0)
+    canvas = np.zeros((height, width), np.float32)
+    canvas[top:top + inner_h, left:left + inner_w] = np.clip(relief, -1.0, 1.0)
+    return canvas
 
 
 class ModelError(ValueError):
@@ -61,13 +93,15 @@ class BallModel:
             self.ball_class = int(settings.get('ball_class', 0))
             self.confidence = float(settings['confidence'])
             self.iou = float(settings['iou'])
+            self.inputs = [str(name) for name in settings.get('inputs', [RGB])]
         except (OSError, ValueError, KeyError, TypeError) as error:
             raise ModelError(f'model_dir {str(directory)!r}: cannot read {SETTINGS_FILE} '
                              f'({type(error).__name__}: {error})') from None
         if not (0 <= self.ball_class < len(self.names) and 0 < self.confidence < 1
-                and 0 < self.iou <= 1 and height > 0 and width > 0):
+                and 0 < self.iou <= 1 and height > 0 and width > 0
+                and self.inputs in ([RGB], [RGB, DEPTH_RELIEF])):
             raise ModelError(f'model_dir {str(directory)!r}: {SETTINGS_FILE} has an invalid '
-                             'input_size, ball_class, confidence or iou')
+                             'input_size, ball_class, confidence, iou or inputs')
         self.input_size = height, width
         try:
             import onnxruntime
@@ -82,7 +116,8 @@ class BallModel:
             self._session = onnxruntime.InferenceSession(
                 str(model_path), options, providers=['CPUExecutionProvider'])
             self._input = self._session.get_inputs()[0].name
-            output = self._forward(np.zeros((1, 3, height, width), np.float32))
+            output = self._forward(np.zeros((1, 2 + len(self.inputs), height, width),
+                                            np.float32))
         # A missing, corrupt or mismatched file: onnxruntime's own exception classes, which
         # derive from Exception alone.
         except Exception as error:
@@ -99,8 +134,22 @@ class BallModel:
     def _forward(self, blob: np.ndarray) -> np.ndarray:
         return self._session.run(None, {self._input: blob})[0]
 
-    def boxes(self, rgb: np.ndarray) -> list[tuple[float, float, float, float, float]]:
-        """Return the balls' boxes (u0, v0, u1, v1, score) in image pixels, best first."""
+    @property
+    def needs_depth(self) -> bool:
+        """Tell whether the model sees the depth image too (its relief)."""
+        return DEPTH_RELIEF in self.inputs
+
+    def boxes(self, rgb: np.ndarray, depth: np.ndarray | None = None
+              ) -> list[tuple[float, float, float, float, float]]:
+        """Return the balls' boxes (u0, v0, u1, v1, score) in image pixels, best first.
+
+        ``depth``: the frame's depth image (metres), for a model that needs it; ValueError
+        when such a model has none or one of another size.
+        """
+        if self.needs_depth and (depth is None or depth.shape[:2] != rgb.shape[:2]):
+            raise ValueError(f'{self.directory}: the model needs the depth image of the '
+                             f'{rgb.shape[1]}x{rgb.shape[0]} frame, got '
+                             f'{"none" if depth is None else depth.shape}')
         height, width = self.input_size
         rows, cols = rgb.shape[:2]
         scale = min(height / rows, width / cols)
@@ -110,6 +159,8 @@ class BallModel:
         canvas[top:top + inner_h, left:left + inner_w] = cv2.resize(
             rgb, (inner_w, inner_h), interpolation=cv2.INTER_AREA)  # as the trainer scales
         blob = cv2.dnn.blobFromImage(canvas, 1 / 255)  # RGB, as ultralytics feeds it
+        if self.needs_depth:
+            blob = np.concatenate([blob, depth_relief(depth, self.input_size)[None, None]], 1)
         output = self._forward(blob)[0]
         if not self._transposed:
             output = output.T  # N x (4 + classes)
@@ -146,15 +197,22 @@ class LearnedBallDetector:
         self.model = model
         self.min_radius_px = float(min_radius_px)
 
-    def detect(self, rgb: np.ndarray, k: np.ndarray | None = None) -> list[Detection]:
+    @property
+    def needs_depth(self) -> bool:
+        """Tell whether ``detect`` needs the frame's depth image (the model sees it)."""
+        return self.model.needs_depth
+
+    def detect(self, rgb: np.ndarray, k: np.ndarray | None = None,
+               depth: np.ndarray | None = None) -> list[Detection]:
         """Return the balls in an RGB uint8 image, the most confident first.
 
         ``k``: the 3x3 camera matrix; without it, outlines are taken as seen on the axis.
+        ``depth``: the frame's depth image (metres), needed when :attr:`needs_depth`.
         """
         if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
             raise ValueError(f'expected an RGB uint8 image, got {rgb.dtype} {rgb.shape}')
         shapes = (box_detection(box, rgb.shape[1], rgb.shape[0], k)
-                  for box in self.model.boxes(rgb))
+                  for box in self.model.boxes(rgb, depth))
         return [detection for detection in shapes if detection.radius >= self.min_radius_px]
 
 

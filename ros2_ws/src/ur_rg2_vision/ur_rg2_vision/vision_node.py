@@ -5,10 +5,12 @@ ROS wiring only; the work is done by :mod:`ur_rg2_vision.detector` (colour + sha
 :mod:`ur_rg2_vision.localize` (depth) and :mod:`ur_rg2_vision.frame_store` (PNG files).
 
 Each colour image is searched for the ball; its depth image (same stamp, before or after it)
-completes it, and then ``ball/position`` is published. A few frames wait for their partner; a
-colour frame whose depth never comes gets no position. The annotated copy on ``ball/image``
-follows as soon as the messages already waiting have been handled: a depth image that came
-right behind its colour image gives the position first (publishing the image costs 1-2 ms).
+completes it, and then ``ball/position`` is published. A learned model that sees the depth too
+searches the frame when its depth has come. A few frames wait for their partner; a colour frame
+whose depth never comes gets no position (nor, with such a model, a ``ball/image``). The
+annotated copy on ``ball/image`` follows as soon as the messages already waiting have been
+handled: a depth image that came right behind its colour image gives the position first
+(publishing the image costs 1-2 ms).
 
 All callbacks run one at a time on one thread (rclpy's multi-threaded executor costs twice the
 CPU here and falls behind at 30 Hz): no locks, and a save (~10 ms for both PNGs) simply delays
@@ -160,8 +162,8 @@ class VisionNode(Node):
             return
         self._color_count += 1
         frame = _Frame(msg.header, self._color_count, rgb, [])
-        frame.detections = self._config.detector.detect(
-            rgb, self._camera[0] if self._info_fits(frame) else None)
+        if not self._config.detector.needs_depth:
+            self._detect(frame)
         every = self._save_every_n
         frame.autosave = every > 0 and frame.index % every == 0
         self._latest = frame
@@ -171,6 +173,17 @@ class VisionNode(Node):
                 self._autosave(old)
         if depth is not None:
             self._complete(frame, depth)  # the position before the (slower) image
+
+    def _detect(self, frame: _Frame) -> None:
+        """Find the balls in a frame (with its depth, for a detector that needs it).
+
+        Queues the frame's ball/image, drawn with what was found.
+        """
+        try:
+            frame.detections = self._config.detector.detect(
+                frame.rgb, self._camera[0] if self._info_fits(frame) else None, frame.depth)
+        except ValueError as error:  # a depth image of another size than the colour's
+            self._warn('detect', f'no ball detection: {error}')
         if self._image_pub.get_subscription_count() > 0:
             self._unpublished.append(frame)
             self._images_due.trigger()
@@ -195,6 +208,8 @@ class VisionNode(Node):
         """Pair a colour frame with its depth: publish the ball's position, autosave."""
         frame.depth = depth
         self._latest_complete = frame
+        if self._config.detector.needs_depth:
+            self._detect(frame)
         fits = self._info_fits(frame)
         if fits:
             self._info_missing = None

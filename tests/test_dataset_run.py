@@ -9,6 +9,7 @@ then frames whose depth shows the sphere there.
 import argparse
 
 from builtin_interfaces.msg import Time
+import cv2
 from geometry_msgs.msg import PoseStamped, TransformStamped
 import numpy as np
 import pytest
@@ -112,8 +113,8 @@ def test_each_sample_is_labelled_with_the_box_of_the_ball_where_it_was_put(tmp_p
     sim = FakeSim()
     sampler = Sampler(sim, _args(tmp_path))
     for index in range(6):
-        rgb, label = sampler.sample(index)
-        assert rgb.shape == (HEIGHT, WIDTH, 3)
+        rgb, depth, label = sampler.sample(index)
+        assert rgb.shape == (HEIGHT, WIDTH, 3) and depth.shape == (HEIGHT, WIDTH)
         ball = sim.params['ball_position']
         assert sim.sets[-1]['ball_position'] == ball
         expected = yolo_label(sphere_box(sampler.camera.to_optical(ball), RADIUS, K), WIDTH,
@@ -127,7 +128,7 @@ def test_random_cameras_and_colours_are_set_and_labelled_in_the_moved_camera(tmp
     sim = FakeSim()
     sampler = Sampler(sim, _args(tmp_path, '--any-camera', '--jitter-color'))
     for index in range(4):
-        _, label = sampler.sample(index)
+        *_, label = sampler.sample(index)
         moved = Camera(tuple(sim.params['camera_position']),
                        tuple(sim.params['camera_look_at']), K, WIDTH, HEIGHT)
         assert 'camera_position' in sim.sets[-1] and 'ball_color' in sim.sets[-1]
@@ -145,7 +146,13 @@ def test_run_writes_the_samples_and_puts_the_sim_back(tmp_path, capsys):
     assert run(_args(tmp_path, '--distractors', '2'), sim) == 0
     images = sorted((tmp_path / 'set' / 'images').rglob('*.png'))
     labels = sorted((tmp_path / 'set' / 'labels').rglob('*.txt'))
-    assert len(images) == len(labels) == 4
+    depths = sorted((tmp_path / 'set' / 'depth').rglob('*.png'))  # 16-bit mm, as scene_dataset
+    assert len(images) == len(labels) == len(depths) == 4
+    assert [p.relative_to(tmp_path / 'set' / 'depth') for p in depths] == [
+        p.relative_to(tmp_path / 'set' / 'images') for p in images]
+    millimetres = cv2.imread(str(depths[0]), cv2.IMREAD_UNCHANGED)
+    assert millimetres.dtype == np.uint16 and millimetres.shape == (HEIGHT, WIDTH)
+    assert 2900 <= np.median(millimetres) <= 3000  # the fake sim's wall, 3 m away
     assert sim.params['ball_position'] == [0.5, -0.3, RADIUS]
     assert sim.params['scene_objects'] == ''
     assert 'wrote 4 samples' in capsys.readouterr().err

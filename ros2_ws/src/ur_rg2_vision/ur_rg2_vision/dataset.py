@@ -6,8 +6,8 @@ the box is found from the four planes through the optical centre that touch the 
 contain an image row or column, not from the projected centre and a radius.
 
 Layout (YOLO): ``images/{train,val}/NAME.png``, ``labels/{train,val}/NAME.txt`` with one line
-``0 cx cy w h`` (normalised to the image size) or nothing when the ball is out of view, and
-``data.yaml``. Names are six-digit sample numbers that continue from the largest one present,
+``0 cx cy w h`` (normalised to the image size) or nothing when the ball is out of view,
+``depth/{train,val}/NAME.png`` (16-bit, millimetres, 0 = none) and ``data.yaml``. Names are six-digit sample numbers that continue from the largest one present,
 and sample ``i`` goes to ``val`` when ``floor((i + 1) f) > floor(i f)`` for the validation
 fraction ``f``: a run that appends continues the same split. Each sample's placement comes from
 a random generator seeded with (seed, i), so one seed gives the same placements whatever the
@@ -87,6 +87,12 @@ def yolo_label(box: tuple[float, float, float, float] | None, width: int, height
         return None
     return ((u0 + u1) / 2 / width, (v0 + v1) / 2 / height, (u1 - u0) / width,
             (v1 - v0) / height)
+
+
+def depth_png(depth: np.ndarray) -> bytes:
+    """Return a depth image (m, inf: no return) as a 16-bit PNG in millimetres (0: none)."""
+    millimetres = np.where(np.isfinite(depth), np.round(depth * 1000.0), 0.0)
+    return encode_png(np.clip(millimetres, 0, 65535).astype(np.uint16))
 
 
 def label_text(label: tuple[float, float, float, float] | None) -> str:

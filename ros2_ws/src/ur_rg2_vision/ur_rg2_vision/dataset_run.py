@@ -26,6 +26,7 @@ from ur_rg2_vision.dataset import (
     PlacementError,
     Progress,
     check_writable,
+    depth_png,
     hidden_fraction,
     plan_placement,
     sphere_box,
@@ -168,20 +169,24 @@ class Sampler:
                               ball_color=self.original['ball_color'],
                               any_camera=a.any_camera)
 
-    def sample(self, index: int) -> tuple[np.ndarray, tuple | None]:
-        """Return (rgb, label) of sample ``index``: the ball placed, at rest, in a new frame."""
+    def sample(self, index: int) -> tuple[np.ndarray, np.ndarray, tuple | None]:
+        """Return (rgb, depth, label) of sample ``index``: the ball placed, at rest, a new frame.
+
+        The depth in metres (inf: no return), registered to the colour image.
+        """
         for attempt in range(REDRAWS):
             placement = self.placement(index, attempt)
             result = self._shoot(placement)
             if result is not None:
-                if result[1] is None:
+                if result[2] is None:
                     self.empty += 1
                 return result
             self.redrawn += 1
         raise SimError(f'sample {index}: the ball was hidden (by the robot?) in {REDRAWS} '
                        f'placements in a row')
 
-    def _shoot(self, placement: Placement) -> tuple[np.ndarray, tuple | None] | None:
+    def _shoot(self, placement: Placement
+               ) -> tuple[np.ndarray, np.ndarray, tuple | None] | None:
         d = self.driver
         # The scenery first: the frame taken once the ball rests then shows it too.
         values: dict[str, object] = {}
@@ -226,14 +231,15 @@ class Sampler:
             center = (world_to_optical @ np.append(position, 1.0))[:3]
             k = camera_matrix(info)
             label = yolo_label(sphere_box(center, self.radius, k), info.width, info.height)
+            metres = image_to_depth(depth)
             if label is not None:
-                hidden, missing = hidden_fraction(center, self.radius, k, image_to_depth(depth))
+                hidden, missing = hidden_fraction(center, self.radius, k, metres)
                 if hidden > HIDDEN_MAX:
                     return None
                 if missing > EMPTY_MAX:
                     after = stamp
                     continue
-            return image_to_rgb(color), label
+            return image_to_rgb(color), metres, label
         raise SimError(f'{STALE_FRAMES} frames in a row did not show the ball where '
                        f'ball/true_pose has it')
 
@@ -351,8 +357,8 @@ def run(args: argparse.Namespace, driver) -> int:
         started = time.monotonic()
         progress = Progress(args.count, every=args.progress_every)
         for _ in range(args.count):
-            rgb, label = sampler.sample(writer.next_index)
-            writer.write(rgb, label)
+            rgb, depth, label = sampler.sample(writer.next_index)
+            writer.write(rgb, label, {'depth': ('.png', depth_png(depth))})
             written += 1
             progress.advance()
     except InterruptError as stop:

@@ -14,17 +14,8 @@ import argparse
 import json
 import sys
 
-import numpy as np
-
-from ur_rg2_vision.dataset import DatasetWriter, Progress
-from ur_rg2_vision.frame_store import encode_png
+from ur_rg2_vision.dataset import DatasetWriter, Progress, depth_png
 from ur_rg2_vision.scenes import detector_scenes
-
-
-def depth_png(depth: np.ndarray) -> bytes:
-    """Return a depth image (m, inf: no return) as a 16-bit PNG in millimetres (0: none)."""
-    millimetres = np.where(np.isfinite(depth), np.round(depth * 1000.0), 0.0)
-    return encode_png(np.clip(millimetres, 0, 65535).astype(np.uint16))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -7,11 +7,11 @@ contain an image row or column, not from the projected centre and a radius.
 
 Layout (YOLO): ``images/{train,val}/NAME.png``, ``labels/{train,val}/NAME.txt`` with one line
 ``0 cx cy w h`` (normalised to the image size) or nothing when the ball is out of view,
-``depth/{train,val}/NAME.png`` (16-bit, millimetres, 0 = none) and ``data.yaml``. Names are six-digit sample numbers that continue from the largest one present,
-and sample ``i`` goes to ``val`` when ``floor((i + 1) f) > floor(i f)`` for the validation
-fraction ``f``: a run that appends continues the same split. Each sample's placement comes from
-a random generator seeded with (seed, i), so one seed gives the same placements whatever the
-run that made sample ``i``.
+``depth/{train,val}/NAME.png`` (16-bit, millimetres, 0 = none) and ``data.yaml``. Names are
+six-digit sample numbers that continue from the largest one present, and sample ``i`` goes to
+``val`` when ``floor((i + 1) f) > floor(i f)`` for the validation fraction ``f``: a run that
+appends continues the same split. Each sample's placement comes from a random generator seeded
+with (seed, i), so one seed gives the same placements whatever the run that made sample ``i``.
 """
 
 from collections.abc import Sequence

@@ -7,10 +7,10 @@ ROS wiring only; the work is done by :mod:`ur_rg2_vision.detector` (colour + sha
 Each colour image is searched for the ball; its depth image (same stamp, before or after it)
 completes it, and then ``ball/position`` is published. A learned model that sees the depth too
 searches the frame when its depth has come. A few frames wait for their partner; a colour frame
-whose depth never comes gets no position (nor, with such a model, a ``ball/image``). The
-annotated copy on ``ball/image`` follows as soon as the messages already waiting have been
-handled: a depth image that came right behind its colour image gives the position first
-(publishing the image costs 1-2 ms).
+whose depth never comes gets no position (and, with such a model, a ``ball/image`` without
+detections once it is given up). The annotated copy on ``ball/image`` follows as soon as the
+messages already waiting have been handled: a depth image that came right behind its colour
+image gives the position first (publishing the image costs 1-2 ms).
 
 All callbacks run one at a time on one thread (rclpy's multi-threaded executor costs twice the
 CPU here and falls behind at 30 Hz): no locks, and a save (~10 ms for both PNGs) simply delays
@@ -168,8 +168,10 @@ class VisionNode(Node):
         frame.autosave = every > 0 and frame.index % every == 0
         self._latest = frame
         depth, stale = self._pairs.add_color(_stamp_key(msg.header), frame)
-        for old in stale:
-            if old.autosave:  # its depth never came: save the colour alone
+        for old in stale:  # its depth never came
+            if self._config.detector.needs_depth:
+                self._queue_image(old)  # as it is: the model had nothing to look at
+            if old.autosave:  # save the colour alone
                 self._autosave(old)
         if depth is not None:
             self._complete(frame, depth)  # the position before the (slower) image
@@ -184,6 +186,9 @@ class VisionNode(Node):
                 frame.rgb, self._camera[0] if self._info_fits(frame) else None, frame.depth)
         except ValueError as error:  # a depth image of another size than the colour's
             self._warn('detect', f'no ball detection: {error}')
+        self._queue_image(frame)
+
+    def _queue_image(self, frame: _Frame) -> None:
         if self._image_pub.get_subscription_count() > 0:
             self._unpublished.append(frame)
             self._images_due.trigger()

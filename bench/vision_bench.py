@@ -200,6 +200,7 @@ class _Feeder:
         if self.feeder.is_alive():
             self.feeder.join(5)
         self.executor.shutdown(timeout_sec=5)
+        self.spinner.join(5)  # a daemon thread still in rclpy at exit aborts the process
         self.node.destroy_node()
         self.context.try_shutdown()
 

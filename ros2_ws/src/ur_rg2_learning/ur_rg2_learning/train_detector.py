@@ -41,6 +41,7 @@ from ur_rg2_vision.learned import (
     SETTINGS_FILE,
     BallModel,
     depth_relief,
+    input_channels,
 )
 
 from ur_rg2_learning.actor import write_atomically
@@ -204,7 +205,7 @@ def export(torch, net, size: tuple[int, int], directory: Path, settings: dict) -
     directory.mkdir(parents=True, exist_ok=True)
     temporary = directory / (MODEL_FILE + '.tmp')
     net.eval()
-    channels = 2 + len(settings['inputs'])  # RGB, and the relief
+    channels = input_channels(settings['inputs'])
     torch.onnx.export(Exported(net), (torch.zeros(1, channels, *size),), str(temporary),
                       dynamo=False, opset_version=13, input_names=['images'],
                       output_names=['output'])
@@ -289,7 +290,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f'train_detector: {len(images)} training frames loaded in '
           f'{time.monotonic() - started:.0f} s', flush=True)
     inputs = [RGB, DEPTH_RELIEF] if args.depth else [RGB]
-    net = BallNet(in_channels=2 + len(inputs))
+    net = BallNet(in_channels=input_channels(inputs))
     init_settings: dict = {}  # the detector.json of the model --init starts from
     if args.init:
         from ur_rg2_learning.detector_net import load_exported

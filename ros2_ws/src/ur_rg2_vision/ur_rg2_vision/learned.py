@@ -46,6 +46,11 @@ _RELIEF_SIGMA_PX = 8.0  # the smooth surface the relief is measured from, input 
 _RELIEF_GAIN = 20.0  # relief channel per metre (clipped to +-1: 5 cm and more)
 
 
+def input_channels(inputs: list[str]) -> int:
+    """Return the channels of a model's input: RGB's three, and one for the depth's relief."""
+    return 3 + (DEPTH_RELIEF in inputs)
+
+
 def depth_relief(depth: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     """Return a depth image's relief at a model's input ``size`` (height, width), float32.
 
@@ -116,7 +121,7 @@ class BallModel:
             self._session = onnxruntime.InferenceSession(
                 str(model_path), options, providers=['CPUExecutionProvider'])
             self._input = self._session.get_inputs()[0].name
-            output = self._forward(np.zeros((1, 2 + len(self.inputs), height, width),
+            output = self._forward(np.zeros((1, input_channels(self.inputs), height, width),
                                             np.float32))
         # A missing, corrupt or mismatched file: onnxruntime's own exception classes, which
         # derive from Exception alone.

@@ -107,6 +107,8 @@ def test_short_training_exports_a_model_evaluate_reads_and_vision_serves(tmp_pat
     settings = json.loads((model / SETTINGS_FILE).read_text())
     assert 'Apache-2.0' in settings['licence'] and 'ultralytics' not in json.dumps(settings)
     assert settings['inputs'] == (['rgb', 'depth_relief'] if depth else ['rgb'])
+    # Hard negatives mined from a quarter of the training on: at the second of two epochs.
+    assert [m['epoch'] for m in settings['training']['hard_negatives']['mined']] == [2]
     assert loaded.needs_depth == depth
     further = subprocess.run(  # --init: on from the model, which it records
         [str(BIN / 'train_detector'), '--data', str(data), '--out', str(tmp_path / 'further'),
@@ -301,6 +303,34 @@ def test_training_can_drop_the_balls_that_do_not_stand_out(tmp_path):
         pairs.append((tmp_path / f'{name}.png', label))
     assert [image.stem for image, _ in plain_pairs(pairs, 0.05)] == ['plain', 'none']
     assert len(plain_pairs(pairs, 0.01)) == 3
+
+
+def test_hard_negatives_are_the_peaks_off_the_ball_and_crops_centre_on_them():
+    """train_detector --hard-negatives: the network's own false peaks are what it trains on."""
+    torch = pytest.importorskip('torch')
+    from ur_rg2_learning.detector_net import STRIDE, BallNet
+    from ur_rg2_learning.train_detector import augment, hard_negatives
+    net = BallNet()
+    with torch.no_grad():  # the same score everywhere: every cell is a peak, at cx = col * 8
+        net.head[-1].weight.zero_()
+        net.head[-1].bias.copy_(torch.tensor([2.0, 0.0, 0.0, 1.0, 1.0]))
+    images = np.zeros((2, 96, 128, 3), np.uint8)
+    ball = (0.0, 0.0, 60.0, 40.0)
+    found = hard_negatives(torch, net, images, None, [None, ball])
+    cells = (96 // STRIDE) * (128 // STRIDE)
+    assert len(found[0]) == cells  # no ball: every peak is false
+    inside = (60 // STRIDE + 1) * (40 // STRIDE + 1)
+    assert len(found[1]) == cells - inside
+    assert not ((found[1][:, 0] <= 60) & (found[1][:, 1] <= 40)).any()
+    assert net.training  # handed back to training
+    rng = np.random.default_rng(0)
+    hard = np.array([[100.0, 70.0]], np.float32)
+    frame = np.zeros((96, 128, 3), np.uint8)
+    frame[70, 100] = 255  # the hard negative's pixel
+    for _ in range(20):
+        crop, box = augment(rng, frame, ball, (32, 32), hard=hard, hard_share=1.0)
+        assert crop.shape == (32, 32, 3) and box is None  # centred on it, not on the ball
+        assert crop.max() > crop.min()  # its pixel is in the crop (however bright)
 
 
 def test_a_ball_is_plain_to_the_eye_only_off_both_floor_colours():

@@ -8,7 +8,11 @@ network also sees each frame's depth relief (:func:`ur_rg2_vision.learned.depth_
 the ``depth/`` images ``scripts/detector-data`` writes) as a fourth channel. Frames are scaled
 to the input size (``--imgsz`` wide, 4:3) and held in memory; each step trains on random crops
 of them (``--crop``; the network is fully convolutional), flipped, with their colour channels
-shuffled and their brightness and contrast changed. The learning rate follows a cosine over
+shuffled and their brightness and contrast changed. From ``--hard-from`` of the training on,
+every few epochs the network is run on the whole training frames and its false peaks (a score
+of at least 0.1 outside the frame's ball) are kept as hard negatives: ``--hard-negatives`` of
+the crops are then centred on one of them, so the network learns what it takes for a ball
+(hard negative mining). The learning rate follows a cosine over
 ``--minutes`` (a time budget: the machine may be shared) or ``--epochs``, whichever ends
 first. After each epoch the network is scored on the validation frames; the best epoch (F1 at
 the node's threshold) is exported. Writes to ``--out``: ``model.onnx`` (1 x 5 x N rows ``cx cy
@@ -54,6 +58,8 @@ FLOOR = 0.05  # scores below this are never a ball
 IOU = 0.5  # non-maximum suppression (one peak per ball already: a guard only)
 FRAME_ASPECT = 480 / 640  # the camera's frames
 VAL_FRAMES = 200  # validation frames scored after each epoch (all of them at the end)
+HARD_SCORE = 0.1  # a peak from this score on outside the frame's ball is a hard negative
+HARD_EVERY = 20  # epochs between two minings of hard negatives
 
 
 def ball_contrast(bgr: np.ndarray, box: tuple[float, float, float, float]) -> float:
@@ -124,16 +130,24 @@ def network_input(rgb: np.ndarray, relief: np.ndarray | None) -> np.ndarray:
 
 def augment(rng: np.random.Generator, image: np.ndarray,
             box: tuple[float, float, float, float] | None, crop: tuple[int, int],
-            relief: np.ndarray | None = None
+            relief: np.ndarray | None = None, hard: np.ndarray | None = None,
+            hard_share: float = 0.0
             ) -> tuple[np.ndarray, tuple[float, float, float, float] | None]:
     """Return a random crop of a frame (often about its ball) with its clipped box.
 
     The crop as the network takes it (:func:`network_input`), with ``relief`` when given.
+    ``hard``: the frame's hard negatives (x, y rows, input pixels); ``hard_share`` of the
+    crops are centred on one of them.
     """
     height, width = image.shape[:2]
     ch, cw = crop
-    if box is not None and rng.uniform() < 0.7:
-        cx, cy = (box[0] + box[2]) / 2, (box[1] + box[3]) / 2
+    centre = None
+    if hard is not None and len(hard) and rng.uniform() < hard_share:
+        centre = hard[rng.integers(len(hard))]
+    elif box is not None and rng.uniform() < 0.7:
+        centre = (box[0] + box[2]) / 2, (box[1] + box[3]) / 2
+    if centre is not None:
+        cx, cy = centre
         x0 = int(np.clip(cx - rng.uniform(0.1, 0.9) * cw, 0, width - cw))
         y0 = int(np.clip(cy - rng.uniform(0.1, 0.9) * ch, 0, height - ch))
     else:
@@ -154,6 +168,32 @@ def augment(rng: np.random.Generator, image: np.ndarray,
     patch = patch[..., rng.permutation(3)].astype(np.float32)
     patch = patch * rng.uniform(0.7, 1.3) + rng.uniform(-30, 30)
     return network_input(np.clip(patch, 0, 255, out=patch), relief), box
+
+
+def hard_negatives(torch, net, images: np.ndarray, reliefs: np.ndarray | None,
+                   boxes: list[tuple[float, float, float, float] | None]) -> list[np.ndarray]:
+    """Return each frame's false peaks: (x, y) rows, input pixels, of the network's peaks.
+
+    A peak (score at least ``HARD_SCORE``) whose centre is outside the frame's ball box.
+    """
+    from ur_rg2_learning.detector_net import Exported
+
+    decoded = Exported(net).eval()
+    found = []
+    with torch.no_grad():
+        for start in range(0, len(images), 32):
+            chunk = range(start, min(start + 32, len(images)))
+            x = torch.from_numpy(np.stack([network_input(
+                images[i], None if reliefs is None else reliefs[i]) for i in chunk]))
+            for i, rows in zip(chunk, decoded(x.permute(0, 3, 1, 2)).numpy()):
+                cx, cy, score = rows[0], rows[1], rows[4]
+                peak = score >= HARD_SCORE
+                box = boxes[i]
+                if box is not None:
+                    peak &= (cx < box[0]) | (cx > box[2]) | (cy < box[1]) | (cy > box[3])
+                found.append(np.stack([cx[peak], cy[peak]], axis=1))
+    net.train()
+    return found
 
 
 def plot_curve(rows: list[dict], png: Path) -> None:
@@ -241,15 +281,23 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--depth', action='store_true',
                         help="the network also sees the depth's relief (a fourth channel; "
                         "needs scene_dataset's depth/ images beside the data set's)")
+    parser.add_argument('--hard-negatives', type=float, default=0.3, metavar='SHARE',
+                        help="share of the crops centred on the network's own false peaks "
+                        '(hard negative mining; 0: none)')
+    parser.add_argument('--hard-from', type=float, default=0.25, metavar='PROGRESS',
+                        help='part of the training (0-1) after which hard negatives are mined, '
+                        f'then every {HARD_EVERY} epochs')
     parser.add_argument('--threads', type=int, default=1,
                         help='torch CPU threads (one ran 10 times faster than two on the '
                         'shared 2-core machine)')
     args = parser.parse_args(argv)
     height = round(args.imgsz * FRAME_ASPECT)
     if (args.epochs < 1 or args.imgsz < 32 or args.imgsz % 32 or args.batch < 1
-            or not 32 <= args.crop <= height or args.minutes <= 0):
+            or not 32 <= args.crop <= height or args.minutes <= 0
+            or not 0 <= args.hard_negatives <= 1 or not 0 <= args.hard_from <= 1):
         parser.error('--epochs, --batch and --minutes must be positive, --imgsz a multiple of '
-                     '32, --crop between 32 and the input height')
+                     '32, --crop between 32 and the input height, --hard-negatives and '
+                     '--hard-from between 0 and 1')
     if not (Path(args.data) / 'data.yaml').is_file():
         print(f'train_detector: no data.yaml in {args.data} (make one with dataset --out)',
               file=sys.stderr)
@@ -315,8 +363,18 @@ def main(argv: list[str] | None = None) -> int:
     rows: list[dict] = []
     best, best_state = -1.0, None
     crop = (args.crop, args.crop)
+    hard: list[np.ndarray | None] = [None] * len(images)
+    mined: list[dict] = []  # when hard negatives were mined, how many
     for epoch in range(1, args.epochs + 1):
         net.train()
+        progress = max((time.monotonic() - started) / budget, (epoch - 1) / args.epochs)
+        if args.hard_negatives > 0 and progress >= args.hard_from and (
+                not mined or epoch - mined[-1]['epoch'] >= HARD_EVERY):
+            hard = hard_negatives(torch, net, images, reliefs, boxes)
+            mined.append({'epoch': epoch, 'peaks': int(sum(len(h) for h in hard)),
+                          'frames': int(sum(bool(len(h)) for h in hard))})
+            print(f'train_detector: epoch {epoch}: {mined[-1]["peaks"]} hard negatives in '
+                  f'{mined[-1]["frames"]} of {len(images)} training frames', flush=True)
         order = rng.permutation(len(images))
         sums = [0.0, 0.0]
         for step in range(steps_per_epoch):
@@ -328,7 +386,8 @@ def main(argv: list[str] | None = None) -> int:
                 group['lr'] = args.lr * (0.02 + 0.98 * 0.5 * (1 + math.cos(
                     math.pi * min(progress, 1.0))))
             batch = [augment(rng, images[i], boxes[i], crop,
-                             None if reliefs is None else reliefs[i])
+                             None if reliefs is None else reliefs[i], hard[i],
+                             args.hard_negatives)
                      for i in order[step * args.batch:(step + 1) * args.batch]]
             x = torch.from_numpy(np.stack([b[0] for b in batch]).transpose(0, 3, 1, 2))
             heat, regress, index = targets([b[1] for b in batch], *crop)
@@ -382,6 +441,8 @@ def main(argv: list[str] | None = None) -> int:
                      'seed': args.seed, 'batch': args.batch, 'lr': args.lr,
                      'frames': len(images), 'val_frames': len(val_pairs),
                      'dropped_low_contrast': dropped,
+                     'hard_negatives': {'share': args.hard_negatives, 'from': args.hard_from,
+                                        'score': HARD_SCORE, 'mined': mined},
                      'seconds': round(seconds, 1),
                      'load_average': load,
                      'command': ' '.join(['train_detector', *(sys.argv[1:] if argv is None

@@ -28,13 +28,13 @@ from bench.vision_bench import _pipeline, _render_frames
 
 HARD_FRAMES = 200
 SEED = 4242  # apart from the tests' and the data sets' seeds
-MIN_VISIBLE = 0.4
 PLAIN = ('pastel', 'white', 'grey', 'dark')  # balls without a strong hue
 
 
 def _scored(shots, detectors: dict) -> dict[str, dict]:
     """Run each detector as the node does (find, confirm and locate with the depth) on shots."""
     from ur_rg2_vision.localize import locate_first
+    from ur_rg2_vision.scenes import MIN_VISIBLE
 
     results = {name: {'balls': 0, 'found': 0, 'false': 0, 'errors': [], 'times': [],
                       'empty': 0} for name in detectors}

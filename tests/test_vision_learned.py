@@ -127,7 +127,8 @@ def test_short_training_exports_a_model_evaluate_reads_and_vision_serves(tmp_pat
     pipeline = lines.index(next(x for x in lines if x.startswith('node pipeline')))
     assert re.fullmatch(f'  all: {line}, \\d+ false balls, 3D error median .*',
                         lines[pipeline + 1]), lines
-    groups = [x.split(':')[0].strip() for x in lines[2:pipeline]]
+    assert re.fullmatch(f'  every labelled ball: {line}', lines[pipeline - 1]), lines
+    groups = [x.split(':')[0].strip() for x in lines[2:pipeline - 1]]
     assert groups and set(groups) <= set(COLOR_GROUPS), lines
     swept = subprocess.run(
         [str(BIN / 'evaluate_detector'), '--model', str(model), '--data', str(data),
@@ -331,6 +332,31 @@ def test_hard_negatives_are_the_peaks_off_the_ball_and_crops_centre_on_them():
         crop, box = augment(rng, frame, ball, (32, 32), hard=hard, hard_share=1.0)
         assert crop.shape == (32, 32, 3) and box is None  # centred on it, not on the ball
         assert crop.max() > crop.min()  # its pixel is in the crop (however bright)
+
+
+def test_a_ball_mostly_hidden_is_neither_missed_nor_falsely_found(tmp_path):
+    """evaluate_detector: a ball under 40 % visible is difficult, as PASCAL VOC's."""
+    import cv2
+    from ur_rg2_learning.evaluate_detector import Scores, evaluate
+    for kind in ('images', 'labels', 'meta'):
+        (tmp_path / kind / 'val').mkdir(parents=True)
+    pairs, boxes = [], {}
+    for name, visible, found in (('seen', 1.0, True), ('hidden', 0.2, True),
+                                 ('missed', 0.2, False)):
+        image = tmp_path / 'images' / 'val' / f'{name}.png'
+        cv2.imwrite(str(image), np.zeros((48, 64, 3), np.uint8))
+        label = tmp_path / 'labels' / 'val' / f'{name}.txt'
+        label.write_text('0 0.5 0.5 0.25 0.25\n')  # (24, 18, 40, 30) in pixels
+        (tmp_path / 'meta' / 'val' / f'{name}.json').write_text(json.dumps(
+            {'group': 'grey', 'visible': visible}))
+        pairs.append((image, label))
+        boxes[image.stem] = [(24.0, 18.0, 40.0, 30.0, 0.9), (0.0, 0.0, 8.0, 8.0, 0.5)][
+            0 if found else 1:]
+    frames = iter(pairs)
+    every = Scores(ranked=[])
+    scores = evaluate(lambda rgb, depth: boxes[next(frames)[0].stem], pairs, every_label=every)
+    assert (scores.balls, scores.found, scores.false) == (1, 1, 3)  # the 8-px boxes are false
+    assert (every.balls, every.found, every.false) == (3, 2, 3)
 
 
 def test_a_ball_is_plain_to_the_eye_only_off_both_floor_colours():

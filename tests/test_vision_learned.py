@@ -117,6 +117,20 @@ def test_short_training_exports_a_model_evaluate_reads_and_vision_serves(tmp_pat
     assert further.returncode == 0, further.stderr[-3000:]
     record = json.loads((tmp_path / 'further' / SETTINGS_FILE).read_text())['training']
     assert record['init']['training'] == settings['training'] and record['epochs'] == 1
+    if depth:  # --epochs 0: the model exported again, here with the flip test
+        again = subprocess.run(
+            [str(BIN / 'train_detector'), '--data', str(data), '--out', str(tmp_path / 'again'),
+             '--epochs', '0', '--imgsz', '160', '--crop', '96', '--depth', '--flip-test', '--init',
+             str(model)],
+            capture_output=True, text=True, timeout=300)
+        assert again.returncode == 0, again.stderr[-3000:]
+        exported = json.loads((tmp_path / 'again' / SETTINGS_FILE).read_text())
+        assert exported['flip_test'] and exported['training']['epochs'] == 0
+        assert exported['training']['init']['training'] == settings['training']
+        assert exported['licence'] == settings['licence']  # no training of its own
+        assert (tmp_path / 'again' / 'training_curve.png').read_bytes() == (
+            model / 'training_curve.png').read_bytes()
+        assert BallModel(tmp_path / 'again').needs_depth
     evaluated = subprocess.run(
         [str(BIN / 'evaluate_detector'), '--model', str(model), '--data', str(data)],
         capture_output=True, text=True, timeout=120)
@@ -252,6 +266,35 @@ def test_the_exported_decoding_gives_back_the_box_of_the_training_targets():
     best = rows[0, :, rows[0, 4].argmax()]
     assert np.allclose(best[:4], (56.0, 42.0, 32.0, 24.0), atol=1e-3) and best[4] > 0.99
     assert rows[1, 4].max() < 0.01  # no ball: no peak over any threshold
+
+
+def test_the_flip_test_sees_a_mirrored_frame_as_its_mirror_image():
+    """Exported(flip=True): a mirrored frame's boxes are the frame's boxes mirrored, scores equal.
+
+    Only when the mirrored maps are put back right (offsets from the cell's other side); a
+    network alone, untrained, is not symmetric.
+    """
+    torch = pytest.importorskip('torch')
+    from ur_rg2_learning.detector_net import BallNet, Exported
+    torch.manual_seed(1)
+    net = BallNet(in_channels=4).eval()
+    with torch.no_grad():
+        net.head[-1].weight.mul_(20)  # distinct peaks
+        frame = torch.rand(1, 4, 96, 128)
+        mirrored = torch.flip(frame, [3])
+        rows, rows_mirrored = (Exported(net, flip=True)(x)[0].numpy() for x in (frame, mirrored))
+        alone = Exported(net)(frame)[0].numpy(), Exported(net)(mirrored)[0].numpy()
+    cells = rows[4].reshape(12, 16)
+    assert (cells > 0).sum() >= 3  # peaks to compare
+    assert np.allclose(rows_mirrored[4].reshape(12, 16)[:, ::-1], cells, atol=1e-6)
+    peaks = cells.ravel() > 0
+    cx = rows[0].reshape(12, 16)
+    cx_mirrored = rows_mirrored[0].reshape(12, 16)[:, ::-1]
+    assert np.allclose(128 - cx_mirrored.ravel()[peaks], cx.ravel()[peaks], atol=1e-3)
+    assert np.allclose(rows_mirrored[2:4].reshape(2, 12, 16)[:, :, ::-1].reshape(2, -1)[:, peaks],
+                       rows[2:4][:, peaks], atol=1e-4)
+    assert not np.allclose(alone[1][4].reshape(12, 16)[:, ::-1], alone[0][4].reshape(12, 16),
+                           atol=1e-3)
 
 
 def test_an_exported_model_loads_back_to_train_further(tmp_path):

@@ -71,25 +71,39 @@ class BallNet(nn.Module):
 
 
 class Exported(nn.Module):
-    """The network with its decoding, as exported: RGB 0-1 [and relief] in, ``1 x 5 x N`` out."""
+    """The network with its decoding, as exported: RGB 0-1 [and relief] in, ``1 x 5 x N`` out.
 
-    def __init__(self, net: BallNet) -> None:
+    ``flip``: the flip test of CenterNet's paper: the maps of the image and of its mirror image
+    (mirrored back) are averaged before the decoding, so a peak only one view sees is weakened.
+    """
+
+    def __init__(self, net: BallNet, flip: bool = False) -> None:
         super().__init__()
         self.net = net
+        self.flip = flip
 
     def forward(self, images: torch.Tensor) -> torch.Tensor:
         """Return (B, 5, N) rows cx cy w h score of a batch of images, as BallNet takes them."""
-        out = self.net(images)
-        heat = torch.sigmoid(out[:, :1])
+        if self.flip:
+            count = images.shape[0]
+            both = self.net(torch.cat([images, torch.flip(images, [3])]))
+            out, mirrored = both[:count], torch.flip(both[count:], [3])
+            heat = (torch.sigmoid(out[:, :1]) + torch.sigmoid(mirrored[:, :1])) / 2
+            # A mirrored cell's x offset counts from the cell's other side.
+            out = torch.cat([out[:, 1:2] + 1 - mirrored[:, 1:2], out[:, 2:5] + mirrored[:, 2:5]],
+                            dim=1) / 2
+        else:
+            out = self.net(images)
+            heat, out = torch.sigmoid(out[:, :1]), out[:, 1:5]
         peaks = heat * (functional.max_pool2d(heat, 3, 1, 1) == heat).to(heat.dtype)
         height, width = out.shape[-2:]
         ys = torch.arange(height, dtype=out.dtype).view(1, 1, height, 1).expand(1, 1, height,
                                                                                  width)
         xs = torch.arange(width, dtype=out.dtype).view(1, 1, 1, width).expand(1, 1, height,
                                                                                 width)
-        cx = (xs + out[:, 1:2]) * STRIDE
-        cy = (ys + out[:, 2:3]) * STRIDE
-        size = torch.exp(out[:, 3:5].clamp(max=6.0)) * STRIDE
+        cx = (xs + out[:, 0:1]) * STRIDE
+        cy = (ys + out[:, 1:2]) * STRIDE
+        size = torch.exp(out[:, 2:4].clamp(max=6.0)) * STRIDE
         rows = torch.cat([cx, cy, size, peaks], dim=1)
         return rows.flatten(2)
 

@@ -15,12 +15,13 @@ the crops are then centred on one of them, so the network learns what it takes f
 (hard negative mining). The learning rate follows a cosine over
 ``--minutes`` (a time budget: the machine may be shared) or ``--epochs``, whichever ends
 first. After each epoch the network is scored on the validation frames; the best epoch (F1 at
-the node's threshold) is exported. Writes to ``--out``: ``model.onnx`` (1 x 5 x N rows ``cx cy
-w h score``, the layout :mod:`ur_rg2_vision.learned` reads), ``detector.json`` (input size,
-class names, thresholds, how it was trained, with the load average, and the validation metrics
-of the exported model run as ``vision`` runs it), ``results.csv`` (per epoch) and
-``training_curve.png``. Needs the learning set-up (``scripts/bootstrap
-requirements-learning.txt``).
+the node's threshold) is exported, with ``--flip-test`` as a model that averages each frame's
+maps with its mirror image's (``--epochs 0 --init MODEL``: that model exported again). Writes
+to ``--out``: ``model.onnx`` (1 x 5 x N rows ``cx cy w h score``, the layout
+:mod:`ur_rg2_vision.learned` reads), ``detector.json`` (input size, class names, thresholds,
+how it was trained, with the load average, and the validation metrics of the exported model run
+as ``vision`` runs it), ``results.csv`` (per epoch) and ``training_curve.png``. Needs the
+learning set-up (``scripts/bootstrap requirements-learning.txt``).
 """
 
 from __future__ import annotations
@@ -234,8 +235,11 @@ def choose_threshold(ranked: list[tuple[float, bool]], balls: int) -> float:
     return threshold
 
 
-def export(torch, net, size: tuple[int, int], directory: Path, settings: dict) -> BallModel:
+def export(torch, net, size: tuple[int, int], directory: Path, settings: dict,
+           flip: bool = False) -> BallModel:
     """Write the network (with its decoding) as ``model.onnx`` and ``settings`` beside it.
+
+    ``flip``: with the flip test (:class:`ur_rg2_learning.detector_net.Exported`).
 
     Returns it loaded as the vision node loads it: scoring it scores what the node runs
     (ONNX Runtime, the frame scaled as the node scales it, non-maximum suppression).
@@ -246,7 +250,7 @@ def export(torch, net, size: tuple[int, int], directory: Path, settings: dict) -
     temporary = directory / (MODEL_FILE + '.tmp')
     net.eval()
     channels = input_channels(settings['inputs'])
-    torch.onnx.export(Exported(net), (torch.zeros(1, channels, *size),), str(temporary),
+    torch.onnx.export(Exported(net, flip), (torch.zeros(1, channels, *size),), str(temporary),
                       dynamo=False, opset_version=13, input_names=['images'],
                       output_names=['output'])
     os.replace(temporary, directory / MODEL_FILE)
@@ -263,7 +267,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--data', required=True, metavar='DIR',
                         help='data set directory (dataset --out) with its data.yaml')
     parser.add_argument('--out', required=True, metavar='DIR', help='model directory to write')
-    parser.add_argument('--epochs', type=int, default=60)
+    parser.add_argument('--epochs', type=int, default=60,
+                        help='0 with --init: no training, the --init model is exported again '
+                        "(with this run's --flip-test), scored and its threshold chosen")
     parser.add_argument('--minutes', type=float, default=50.0,
                         help='time budget: training ends after it even before --epochs')
     parser.add_argument('--imgsz', type=int, default=320,
@@ -287,17 +293,22 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--hard-from', type=float, default=0.25, metavar='PROGRESS',
                         help='part of the training (0-1) after which hard negatives are mined, '
                         f'then every {HARD_EVERY} epochs')
+    parser.add_argument('--flip-test', action='store_true',
+                        help='the exported model averages the maps of each frame and of its '
+                        "mirror image (CenterNet's flip test; twice the inference time)")
     parser.add_argument('--threads', type=int, default=1,
                         help='torch CPU threads (one ran 10 times faster than two on the '
                         'shared 2-core machine)')
     args = parser.parse_args(argv)
     height = round(args.imgsz * FRAME_ASPECT)
-    if (args.epochs < 1 or args.imgsz < 32 or args.imgsz % 32 or args.batch < 1
+    if (args.epochs < 0 or args.imgsz < 32 or args.imgsz % 32 or args.batch < 1
             or not 32 <= args.crop <= height or args.minutes <= 0
             or not 0 <= args.hard_negatives <= 1 or not 0 <= args.hard_from <= 1):
-        parser.error('--epochs, --batch and --minutes must be positive, --imgsz a multiple of '
-                     '32, --crop between 32 and the input height, --hard-negatives and '
-                     '--hard-from between 0 and 1')
+        parser.error('--batch and --minutes must be positive, --epochs 0 or more, --imgsz a '
+                     'multiple of 32, --crop between 32 and the input height, --hard-negatives '
+                     'and --hard-from between 0 and 1')
+    if args.epochs == 0 and not args.init:
+        parser.error('--epochs 0 exports a model again: it needs --init')
     if not (Path(args.data) / 'data.yaml').is_file():
         print(f'train_detector: no data.yaml in {args.data} (make one with dataset --out)',
               file=sys.stderr)
@@ -359,9 +370,9 @@ def main(argv: list[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     scratch = out / '.epoch'  # each epoch's export, scored as the node runs it
     settings = {'input_size': list(size), 'names': ['ball'], 'ball_class': 0, 'iou': IOU,
-                'inputs': inputs}
+                'inputs': inputs, 'flip_test': args.flip_test}
     rows: list[dict] = []
-    best, best_state = -1.0, None
+    best, best_state, best_epoch = -1.0, None, 0
     crop = (args.crop, args.crop)
     hard: list[np.ndarray | None] = [None] * len(images)
     mined: list[dict] = []  # when hard negatives were mined, how many
@@ -399,7 +410,7 @@ def main(argv: list[str] | None = None) -> int:
             sums[0] += float(focal.detach())
             sums[1] += float(box.detach())
         scores = evaluate(export(torch, net, size, scratch, dict(
-            settings, confidence=CONFIDENCE)).boxes, val_check)
+            settings, confidence=CONFIDENCE), args.flip_test).boxes, val_check)
         f1 = 2 * scores.recall * scores.precision / max(scores.recall + scores.precision, 1e-9)
         minutes = (time.monotonic() - started) / 60
         rows.append({'epoch': epoch, 'minutes': round(minutes, 2),
@@ -419,23 +430,29 @@ def main(argv: list[str] | None = None) -> int:
     seconds = time.monotonic() - started
     load = {'start': round(load_start, 1), 'end': round(os.getloadavg()[0], 1),
             'end_15min': round(os.getloadavg()[2], 1)}
-    net.load_state_dict(best_state)
-    scored = evaluate(export(torch, net, size, scratch, dict(settings, confidence=FLOOR)).boxes,
-                      val_pairs)
+    if best_state is not None:
+        net.load_state_dict(best_state)
+    scored = evaluate(export(torch, net, size, scratch, dict(settings, confidence=FLOOR),
+                             args.flip_test).boxes, val_pairs)
     confidence = choose_threshold(scored.ranked, scored.balls)
     shutil.rmtree(scratch, ignore_errors=True)
-    text = io.StringIO()
-    writer = csv.DictWriter(text, fieldnames=list(rows[0]))
-    writer.writeheader()
-    writer.writerows(rows)
-    write_atomically(out / 'results.csv', lambda f: f.write(text.getvalue().encode()))
-    plot_curve(rows, out / 'training_curve.png')
+    if rows:
+        text = io.StringIO()
+        writer = csv.DictWriter(text, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+        write_atomically(out / 'results.csv', lambda f: f.write(text.getvalue().encode()))
+        plot_curve(rows, out / 'training_curve.png')
+    else:  # exported again: the curve is the --init model's
+        for name in ('results.csv', 'training_curve.png'):
+            if (Path(args.init) / name).is_file():
+                shutil.copyfile(Path(args.init) / name, out / name)
     settings.update({
         'confidence': confidence,
         'layout': 'ur_rg2_learning.detector_net (CenterNet, stride 8) ONNX: 1 x 5 x N rows cx '
                   'cy w h score in input pixels of the frame scaled to the input',
         'licence': 'Apache-2.0 (trained by this project, from scratch{})'.format(
-            f', then further from {args.init}' if args.init else ''),
+            f', then further from {args.init}' if args.init and rows else ''),
         'training': {'data': str(Path(args.data).resolve()), 'epochs': len(rows),
                      'best_epoch': best_epoch, 'imgsz': args.imgsz, 'crop': args.crop,
                      'seed': args.seed, 'batch': args.batch, 'lr': args.lr,
@@ -454,7 +471,7 @@ def main(argv: list[str] | None = None) -> int:
         settings['training']['init'] = {'model': str(Path(args.init).resolve()), **{
             k: v for k, v in init_settings.items() if k in ('training', 'validation')}}
     # The validation metrics of the exported model, run as the vision node runs it.
-    scores = evaluate(export(torch, net, size, out, settings).boxes, val_pairs)
+    scores = evaluate(export(torch, net, size, out, settings, args.flip_test).boxes, val_pairs)
     settings['validation'] = {'recall': round(scores.recall, 4),
                               'precision': round(scores.precision, 4),
                               'mAP50': round(scores.map50, 4), 'images': scores.images}

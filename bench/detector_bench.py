@@ -111,13 +111,14 @@ def run() -> list[tuple[str, str, str]]:
     settings = json.loads((SHIPPED_MODEL / SETTINGS_FILE).read_text())
     training, validation = settings['training'], settings['validation']
     size = os.path.getsize(SHIPPED_MODEL / MODEL_FILE) / 1e6
-    minutes, before = training['seconds'] / 60, 0.0  # before: what trained its --init model
-    record = training
-    while 'init' in record:
-        record = record['init']['training']
-        before += record['seconds'] / 60
-    spent = f'{minutes:.1f} min' + (f' on from {before:.1f} min (--init): {minutes + before:.1f}'
-                                    ' min in all' if before else '')
+    records = [training]  # then what trained each --init model it started from
+    while 'init' in records[-1]:
+        records.append(records[-1]['init']['training'])
+    minutes = [record['seconds'] / 60 for record in reversed(records)]
+    spent = f'{sum(minutes):.1f} min' + (
+        ' in all: ' + ' + '.join(f'{m:.1f}' for m in minutes) + ' min (--init)'
+        if len(minutes) > 1 else '')
+    loads = [record['load_average'] for record in records]
     _, default = _render_frames()
     pipeline = _pipeline(default, {'detector': 'learned'})
     load_pipeline = os.getloadavg()[0]
@@ -128,9 +129,9 @@ def run() -> list[tuple[str, str, str]]:
         ('detector learned: frames processed, fed at 30 Hz (ball/position)',
          f'{pipeline["positions"]} of {pipeline["sent"]} (load {load_pipeline:.1f})', 'all'),
         ('detector learned: shipped model, training time (train_detector, this machine)',
-         f'{spent} ({training["epochs"]} epochs, imgsz '
-         f'{training["imgsz"]}, load {training["load_average"]["start"]}-'
-         f'{training["load_average"]["end"]})', '<= 60 min'),
+         f'{spent} ({sum(record["epochs"] for record in records)} epochs, imgsz '
+         f'{training["imgsz"]}, load {min(load["start"] for load in loads)}-'
+         f'{max(load["end"] for load in loads)})', '<= 60 min'),
         ('detector learned: shipped model, size (model.onnx)', f'{size:.1f} MB', 'a few MB'),
         ('detector learned: shipped model, its validation split (evaluate_detector)',
          f'recall {validation["recall"]:.3f} precision {validation["precision"]:.3f} '

@@ -22,6 +22,7 @@ import pytest
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
+from test_vision_scenes import Box, K, Scene, Sphere, project, render
 from ur_rg2_common.camera_pose import optical_rotation
 from ur_rg2_common.contract import IMAGE_QOS
 from ur_rg2_vision import scene_dataset
@@ -40,6 +41,7 @@ from ur_rg2_vision.scenes import detector_scenes, hard_scenes, plain_to_the_eye
 from ur_rg2_vision.vision_node import VisionNode
 
 BIN = Path(sys.executable).parent
+BASE = Scene()
 TIMEOUT = 30.0  # the sim and the vision in one process on a loaded 2-core machine
 
 
@@ -51,19 +53,46 @@ def _listen(graph) -> tuple[list[PointStamped], list[Image]]:
     return positions, images
 
 
+def _exact_box(centre, radius: float, k: np.ndarray) -> tuple[float, ...]:
+    """Return the box (u0, v0, u1, v1, score) a perfect network gives a ball, amodal."""
+    cx, cy, w, h = yolo_label(sphere_box(centre, radius, k), 640, 480)
+    return (cx - w / 2) * 640, (cy - h / 2) * 480, (cx + w / 2) * 640, (cy + h / 2) * 480, 0.9
+
+
 def test_a_box_around_a_ball_gives_its_centre_through_the_depth():
     """The geometry without the model: the exact box of each ball, off the axis too."""
     errors = []
     for shot in hard_scenes(16, seed=21, ball_share=1.0):
         if shot.centre is None or shot.visible < 0.9:
             continue
-        cx, cy, w, h = yolo_label(sphere_box(shot.centre, shot.radius, shot.k), 640, 480)
-        box = ((cx - w / 2) * 640, (cy - h / 2) * 480, (cx + w / 2) * 640, (cy + h / 2) * 480,
-               0.9)
+        box = _exact_box(shot.centre, shot.radius, shot.k)
         position = locate_ball(box_detection(box, 640, 480, shot.k), shot.depth, shot.k)
         assert position is not None, shot.name
         errors.append(np.linalg.norm([position.x, position.y, position.z] - shot.centre))
     assert len(errors) >= 8 and np.median(errors) < 0.003, errors
+
+
+@pytest.mark.parametrize('edge', [0.06, 0.08, 0.085, 0.0875])
+def test_a_ball_hidden_in_part_by_a_thing_in_front_gives_its_centre(edge):
+    """A link in front of 0, 37, 48 and 54 % of the ball's disc: its depth is an occluder's."""
+    ball = BASE.on_floor(0.1, 1.2, 0.03)
+    link = Box(BASE.on_floor(edge - 0.05, 1.0, 0.1), (0.05, 0.01, 0.1), (0.6, 0.6, 0.62))
+    _, depth = render(Scene(spheres=[Sphere(ball)], boxes=[link]))
+    detection = box_detection(_exact_box(ball, 0.03, K), 640, 480, K)
+    position = locate_ball(detection, depth, K)
+    assert position is not None
+    assert np.linalg.norm([position.x, position.y, position.z] - np.array(ball)) < 0.003
+
+
+def test_a_box_whose_depth_shows_the_floor_through_half_the_ball_is_no_ball():
+    """Half a ball's depth, the floor behind the rest: no occluder explains the rest."""
+    ball = BASE.on_floor(0.1, 1.2, 0.03)
+    _, depth = render(Scene(spheres=[Sphere(ball)]))
+    _, floor = render(Scene())
+    u = project(ball)[0]
+    depth[:, :round(u) + 2] = floor[:, :round(u) + 2]  # a little more than the left half
+    detection = box_detection(_exact_box(ball, 0.03, K), 640, 480, K)
+    assert locate_ball(detection, depth, K) is None
 
 
 def test_the_depth_relief_shows_a_ball_and_not_a_tilted_floor_or_holes():

@@ -9,7 +9,8 @@ The ball's size is measured, not assumed (unless ``ball_radius`` is given). Two 
 1. Outline and depth: the detected circle is the image of the cone tangent to the sphere, of
    half-angle alpha; a sphere of radius ``distance * sin(alpha)`` fills that cone at every
    distance. Each ball pixel's depth fixes the one distance at which that sphere's surface
-   passes through it; the median over the pixels is robust to outliers. Precise to about
+   passes through it; the middle of the densest cluster of these distances is robust to
+   outliers, an occluder over more than half the ball's disc too. Precise to about
    half a pixel of the circle's radius: a few per cent on a small, far ball.
 2. Depth alone: a sphere with free centre and radius fitted to the back-projected pixels
    (algebraic least squares on the points near estimate 1, then Gauss-Newton of the geometric
@@ -21,7 +22,8 @@ The two must agree (in curvature, within their uncertainties): a flat patch of t
 has the outline of a ball but no curvature, a cube's faces have the wrong one. The radius is
 their inverse-variance weighted mean. A final fit of a sphere of that radius gives the centre,
 which must explain the depth (residuals), lie behind the surface it was fitted to, and look as
-large as the detected circle.
+large as the detected circle. A ball partly hidden is found: the points the fit leaves out may
+be an occluder in front of it, not depth seen behind its front surface.
 """
 
 from collections.abc import Sequence
@@ -41,7 +43,10 @@ _CONVERGED = 1e-5  # m: a step this small with the same points kept ends a fit
 _TRIM_SIGMAS = 3.0
 _TRIM_FLOOR = 0.001  # m: residuals this close to the median are never trimmed
 _FIRST_TRIM_FLOOR = 0.2  # of the radius, in the first round
-_MIN_KEPT_FRACTION = 0.6
+_MIN_KEPT_FRACTION = 0.4  # of the points: the rest may be an occluder in front of the ball,
+_MAX_SEEN_THROUGH = 0.2  # ... but no more than this share seen behind its front surface
+_THROUGH_TOLERANCE = 0.1  # of the radius: behind the front surface by more than this
+_ESTIMATE_WINDOW = 0.2  # of the radius: the distance estimates of one sphere's points agree
 _MAX_RMS_FRACTION = 0.06  # of the radius: worse fits are not a sphere of that size
 _SIZE_TOLERANCE = 1.25  # the detected circle's radius may be this factor off the expected
 _MIN_RADIUS = 0.005  # m: the range of balls measured (the sim makes 0.005-0.5 m)
@@ -127,8 +132,7 @@ def locate_ball(detection: Detection, depth: np.ndarray, k: np.ndarray,
         # Start: the free fit's sphere, grown or shrunk away from its front.
         start = free.centre * (1 + (radius - free.radius) / np.linalg.norm(free.centre))
         fit = _robust_fit(points, start, radius, free_radius=False, keep=free.keep)
-    if (fit is None or np.count_nonzero(fit.keep) < _MIN_KEPT_FRACTION * len(z)
-            or not _is_sphere(points, fit)):
+    if fit is None or not _is_sphere(points, fit) or not _hidden_at_most_in_part(points, fit):
         return None
     centre = fit.centre
     distance = float(np.linalg.norm(centre))
@@ -166,20 +170,20 @@ def _measure_radius(points: np.ndarray, ray: np.ndarray, along: np.ndarray,
     # 1. The sphere of radius distance * sin(alpha) through each point: solve
     #    |p - distance * ray| = distance * sin(alpha) for the distance.
     cone = 1 - sin_alpha ** 2
-    distance = _median(
-        (along + np.sqrt(np.maximum(sin_alpha ** 2 * (along ** 2 + lateral2) - lateral2, 0.0)))
-        / cone)
+    estimates = (along + np.sqrt(np.maximum(sin_alpha ** 2 * (along ** 2 + lateral2) - lateral2,
+                                            0.0))) / cone
+    distance = _densest(estimates, _ESTIMATE_WINDOW * sin_alpha)
     outline_radius = distance * sin_alpha
     # Half a pixel on the circle's radius moves the radius by about distance / f / cone.
     outline_sigma = distance * _CIRCLE_SIGMA_PX / focal / cone
     # 2. Depth alone, from the points near estimate 1.
     centre = ray * distance
     residual = _SphereJacobian(points, free_radius=False).update(centre, outline_radius)
-    near = np.abs(residual - _median(residual)) <= _FIRST_TRIM_FLOOR * outline_radius
+    near = np.abs(residual) <= _FIRST_TRIM_FLOOR * outline_radius
     if np.count_nonzero(near) < _MIN_POINTS:
         return None
     centre, radius = _algebraic_sphere(points.compress(near, axis=1), centre, outline_radius)
-    fit = _robust_fit(points, centre, radius, free_radius=True)
+    fit = _robust_fit(points, centre, radius, free_radius=True, keep=near)
     if fit is None or not np.isfinite(fit.radius_sigma) or fit.radius <= 0:
         return None
     # Agreement in curvature, where a plane (curvature 0, radius unbounded) is not a special
@@ -195,6 +199,19 @@ def _measure_radius(points: np.ndarray, ray: np.ndarray, along: np.ndarray,
     if not _MIN_RADIUS <= radius <= _MAX_RADIUS:
         return None
     return float(radius), fit
+
+
+def _densest(values: np.ndarray, width: float) -> float:
+    """Return the median of the values in the window of relative ``width`` that holds most.
+
+    The robust middle of a cluster when outliers may be the majority: the estimates of a ball's
+    points agree, an occluder's in front of it spread.
+    """
+    ordered = np.sort(values)
+    counts = np.searchsorted(ordered, ordered * (1 + width), side='right') - np.arange(
+        len(ordered))
+    start = int(np.argmax(counts))
+    return float(ordered[start + counts[start] // 2])
 
 
 def _median(values: np.ndarray) -> float:
@@ -280,6 +297,23 @@ def _is_sphere(points: np.ndarray, fit: _Fit) -> bool:
     # A concave or flat surface can be fitted from the wrong side; a ball faces the camera.
     surface = _median((fit.centre / distance) @ points.compress(fit.keep, axis=1))
     return bool(distance - surface >= _MIN_CENTRE_BEHIND * fit.radius)
+
+
+def _hidden_at_most_in_part(points: np.ndarray, fit: _Fit) -> bool:
+    """Return whether the fitted sphere explains enough points and the rest are in front of it.
+
+    A ball partly hidden loses the points of its occluder, in front of it; a point behind its
+    front surface, on a ray through its disc, would be seen through the ball.
+    """
+    count = points.shape[1]
+    if np.count_nonzero(fit.keep) < _MIN_KEPT_FRACTION * count:
+        return False
+    ranges = np.sqrt(np.einsum('ij,ij->j', points, points))
+    along = fit.centre @ points / ranges
+    disc = along * along - fit.centre @ fit.centre + fit.radius ** 2
+    front = along - np.sqrt(np.maximum(disc, 0.0))
+    behind = (disc > 0) & (ranges > front + _THROUGH_TOLERANCE * fit.radius)
+    return np.count_nonzero(behind) <= _MAX_SEEN_THROUGH * count
 
 
 class _SphereJacobian:

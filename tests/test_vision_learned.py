@@ -155,6 +155,7 @@ def test_short_training_exports_a_model_evaluate_reads_and_vision_serves(tmp_pat
         assert again.returncode == 0, again.stderr[-3000:]
         exported = json.loads((tmp_path / 'again' / SETTINGS_FILE).read_text())
         assert exported['flip_test'] and exported['training']['epochs'] == 0
+        assert exported['training']['frames'] == settings['training']['frames']
         assert exported['training']['init']['training'] == settings['training']
         assert exported['licence'] == settings['licence']  # no training of its own
         assert (tmp_path / 'again' / 'training_curve.png').read_bytes() == (

@@ -61,6 +61,7 @@ FRAME_ASPECT = 480 / 640  # the camera's frames
 VAL_FRAMES = 200  # validation frames scored after each epoch (all of them at the end)
 HARD_SCORE = 0.1  # a peak from this score on outside the frame's ball is a hard negative
 HARD_EVERY = 20  # epochs between two minings of hard negatives
+CALIBRATION_FRAMES = 64  # set the batch norms of a network loaded from its export (--init)
 
 
 def ball_contrast(bgr: np.ndarray, box: tuple[float, float, float, float]) -> float:
@@ -339,8 +340,12 @@ def main(argv: list[str] | None = None) -> int:
         dropped = counts - len(train_pairs) - len(val_pairs)
         print(f'train_detector: {dropped} samples dropped (ball contrast < '
               f'{args.min_contrast})', flush=True)
+    loaded = train_pairs
+    if args.epochs == 0:  # exported again: only the frames that calibrate the loaded network
+        loaded = [train_pairs[i] for i in np.sort(rng.choice(
+            len(train_pairs), min(CALIBRATION_FRAMES, len(train_pairs)), replace=False))]
     try:
-        images, reliefs, boxes = load_split(train_pairs, size, args.depth)
+        images, reliefs, boxes = load_split(loaded, size, args.depth)
     except OSError as error:
         print(f'train_detector: {error}', file=sys.stderr)
         return 2
@@ -353,7 +358,7 @@ def main(argv: list[str] | None = None) -> int:
     init_settings: dict = {}  # the detector.json of the model --init starts from
     if args.init:
         from ur_rg2_learning.detector_net import load_exported
-        chosen = rng.choice(len(images), min(64, len(images)), replace=False)
+        chosen = rng.choice(len(images), min(CALIBRATION_FRAMES, len(images)), replace=False)
         calibration = torch.from_numpy(np.stack([
             network_input(images[i], None if reliefs is None else reliefs[i])
             for i in chosen]).transpose(0, 3, 1, 2))
@@ -456,7 +461,7 @@ def main(argv: list[str] | None = None) -> int:
         'training': {'data': str(Path(args.data).resolve()), 'epochs': len(rows),
                      'best_epoch': best_epoch, 'imgsz': args.imgsz, 'crop': args.crop,
                      'seed': args.seed, 'batch': args.batch, 'lr': args.lr,
-                     'frames': len(images), 'val_frames': len(val_pairs),
+                     'frames': len(train_pairs), 'val_frames': len(val_pairs),
                      'dropped_low_contrast': dropped,
                      'hard_negatives': {'share': args.hard_negatives, 'from': args.hard_from,
                                         'score': HARD_SCORE, 'mined': mined},

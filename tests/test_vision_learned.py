@@ -215,6 +215,29 @@ def test_short_training_exports_a_model_evaluate_reads_and_vision_serves(tmp_pat
              'one with a bad depth image', interval=0.1)
 
 
+def test_seeds_train_as_ray_tasks_and_write_their_validation_side_by_side(tmp_path):
+    data, out = tmp_path / 'data', tmp_path / 'seeds'
+    scene_dataset.main(['--count', '8', '--out', str(data), '--seed', '5',
+                        '--val-fraction', '0.25'])
+    trained = subprocess.run(
+        [str(BIN / 'train_detector'), '--data', str(data), '--out', str(out), '--epochs', '1',
+         '--imgsz', '128', '--crop', '64', '--batch', '4', '--seeds', '3', '4',
+         '--num-cpus', '2'], capture_output=True, text=True, timeout=400)
+    assert trained.returncode == 0, trained.stderr[-3000:]
+    table = (out / 'seeds.md').read_text()
+    assert table in trained.stdout
+    rows = table.splitlines()
+    assert rows[0].startswith('| seed | epochs (best) | minutes | threshold | validation')
+    assert [row.split('|')[1].strip() for row in rows[2:]] == ['3', '4']
+    weights = set()
+    for seed in (3, 4):
+        settings = json.loads((out / f'seed_{seed}' / SETTINGS_FILE).read_text())
+        assert settings['training']['seed'] == seed and settings['training']['epochs'] == 1
+        assert BallModel(out / f'seed_{seed}').input_size == (96, 128)
+        weights.add((out / f'seed_{seed}' / MODEL_FILE).read_bytes())
+    assert len(weights) == 2  # each seed trained its own network
+
+
 def test_shipped_model_finds_a_blue_ball_and_no_red_cube_or_flat_disc(ros_graph, tmp_path):
     camera, look_at = [1.3, -1.1, 0.95], [0.3, -0.1, 0.1]
     ball = [0.55, -0.5, 0.03]

@@ -20,8 +20,11 @@ maps with its mirror image's (``--epochs 0 --init MODEL``: that model exported a
 to ``--out``: ``model.onnx`` (1 x 5 x N rows ``cx cy w h score``, the layout
 :mod:`ur_rg2_vision.learned` reads), ``detector.json`` (input size, class names, thresholds,
 how it was trained, with the load average, and the validation metrics of the exported model run
-as ``vision`` runs it), ``results.csv`` (per epoch) and ``training_curve.png``. Needs the
-learning set-up (``scripts/bootstrap requirements-learning.txt``).
+as ``vision`` runs it), ``results.csv`` (per epoch) and ``training_curve.png``.
+``--seeds A B ...`` trains each seed as a Ray task (a local Ray with ``--num-cpus``, or an
+existing cluster with ``--address``) and writes ``seed_N/`` for each and ``seeds.md``, their
+validation side by side. Needs the learning set-up (``scripts/bootstrap
+requirements-learning.txt``).
 """
 
 from __future__ import annotations
@@ -35,6 +38,7 @@ import os
 from pathlib import Path
 import shutil
 import sys
+import tempfile
 import time
 
 import cv2
@@ -51,6 +55,7 @@ from ur_rg2_vision.learned import (
 
 from ur_rg2_learning.actor import write_atomically
 from ur_rg2_learning.evaluate_detector import evaluate, label_box, read_depth, split_images
+from ur_rg2_learning.ray_tasks import markdown_table
 
 # A box is a ball from this peak score on while training; the node's threshold (in
 # detector.json) is then chosen on the validation split (best F1, see choose_threshold).
@@ -276,7 +281,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--imgsz', type=int, default=320,
                         help='input width (a multiple of 32); the height keeps 4:3')
     parser.add_argument('--crop', type=int, default=128, help='training crop side, pixels')
-    parser.add_argument('--seed', type=int, default=0)
+    seeds = parser.add_mutually_exclusive_group()
+    seeds.add_argument('--seed', type=int, default=0, help='one seed, in this process')
+    seeds.add_argument('--seeds', type=int, nargs='+', metavar='SEED',
+                       help='several seeds, each a Ray task: writes seed_N/ for each and '
+                       'seeds.md, their validation side by side')
+    parser.add_argument('--num-cpus', type=int, default=None,
+                        help='with --seeds: CPUs of the local Ray (default: all)')
+    parser.add_argument('--address', default=None,
+                        help='with --seeds: an existing Ray cluster (auto or HOST:PORT; its '
+                        'workers need --data and --init at the same paths)')
     parser.add_argument('--batch', type=int, default=64)
     parser.add_argument('--lr', type=float, default=3e-3)
     parser.add_argument('--init', metavar='MODEL_DIR',
@@ -310,18 +324,69 @@ def main(argv: list[str] | None = None) -> int:
                      'and --hard-from between 0 and 1')
     if args.epochs == 0 and not args.init:
         parser.error('--epochs 0 exports a model again: it needs --init')
+    if args.seeds is not None and len(set(args.seeds)) != len(args.seeds):
+        parser.error('--seeds: each seed once')
     if not (Path(args.data) / 'data.yaml').is_file():
         print(f'train_detector: no data.yaml in {args.data} (make one with dataset --out)',
               file=sys.stderr)
         return 2
     try:
-        import torch
-
-        from ur_rg2_learning.detector_net import BallNet, loss, targets
+        import torch  # noqa: F401
     except ImportError as error:
         print(f'train_detector needs the learning set-up ({error}): run '
               '`scripts/bootstrap requirements-learning.txt`', file=sys.stderr)
         return 2
+    args.command = ' '.join(['train_detector', *(sys.argv[1:] if argv is None else argv)])
+    if args.seeds is None:
+        return train(args)
+    from ur_rg2_learning.ray_tasks import ray_map
+
+    options = {k: v for k, v in vars(args).items()
+               if k not in ('seeds', 'num_cpus', 'address')}
+    results = ray_map(train_seed_files, [(options, seed) for seed in args.seeds],
+                      args.num_cpus, args.address)
+    return write_seeds(results, Path(args.out))
+
+
+def train_seed_files(options: dict, seed: int) -> dict:
+    """Train one seed in a directory of its own; return its exit code and files (a Ray task)."""
+    with tempfile.TemporaryDirectory(prefix='train_detector_') as scratch:
+        code = train(argparse.Namespace(**dict(options, seed=seed, out=scratch)))
+        files = {path.name: path.read_bytes() for path in Path(scratch).iterdir()
+                 if path.is_file()}
+    return {'seed': seed, 'code': code, 'files': files}
+
+
+def write_seeds(results: list[dict], out: Path) -> int:
+    """Write each seed's model to ``out/seed_N`` and ``seeds.md``; return 0, 1 if one failed."""
+    rows = [('seed', 'epochs (best)', 'minutes', 'threshold',
+             'validation recall / precision / mAP50 at it')]
+    for result in sorted(results, key=lambda r: r['seed']):
+        folder = out / f'seed_{result["seed"]}'
+        folder.mkdir(parents=True, exist_ok=True)
+        for name, data in result['files'].items():
+            write_atomically(folder / name, lambda f, data=data: f.write(data))
+        if result['code'] != 0 or SETTINGS_FILE not in result['files']:
+            rows.append((str(result['seed']), f'failed (exit {result["code"]})', '', '', ''))
+            continue
+        settings = json.loads(result['files'][SETTINGS_FILE])
+        training, scores = settings['training'], settings['validation']
+        rows.append((str(result['seed']), f'{training["epochs"]} ({training["best_epoch"]})',
+                     f'{training["seconds"] / 60:.1f}', f'{settings["confidence"]:g}',
+                     f'{scores["recall"]:.3f} / {scores["precision"]:.3f} / '
+                     f'{scores["mAP50"]:.3f}'))
+    text = markdown_table(rows)
+    write_atomically(out / 'seeds.md', lambda f: f.write(text.encode()))
+    print(text, end='')
+    return 0 if all(result['code'] == 0 for result in results) else 1
+
+
+def train(args: argparse.Namespace) -> int:
+    """Train, export and score one seed as ``args`` (main's options) say; exit code."""
+    import torch
+
+    from ur_rg2_learning.detector_net import BallNet, loss, targets
+    height = round(args.imgsz * FRAME_ASPECT)
     torch.set_num_threads(args.threads)
     torch.manual_seed(args.seed)
     rng = np.random.default_rng(args.seed)
@@ -467,8 +532,7 @@ def main(argv: list[str] | None = None) -> int:
                                         'score': HARD_SCORE, 'mined': mined},
                      'seconds': round(seconds, 1),
                      'load_average': load,
-                     'command': ' '.join(['train_detector', *(sys.argv[1:] if argv is None
-                                                              else argv)]),
+                     'command': args.command,
                      'network': 'ur_rg2_learning.detector_net.BallNet',
                      'library': f'torch {torch.__version__} (BSD-3-Clause)'},
     })

@@ -226,6 +226,7 @@ def test_seeds_train_as_ray_tasks_and_write_their_validation_side_by_side(tmp_pa
     assert trained.returncode == 0, trained.stderr[-3000:]
     table = (out / 'seeds.md').read_text()
     assert table in trained.stdout
+    assert f'train_detector: seed 4: written to {out / "seed_4"}' in trained.stdout
     rows = table.splitlines()
     assert rows[0].startswith('| seed | epochs (best) | minutes | threshold | validation')
     assert [row.split('|')[1].strip() for row in rows[2:]] == ['3', '4']

@@ -366,6 +366,7 @@ def write_seeds(results: list[dict], out: Path) -> int:
         folder.mkdir(parents=True, exist_ok=True)
         for name, data in result['files'].items():
             write_atomically(folder / name, lambda f, data=data: f.write(data))
+        print(f'train_detector: seed {result["seed"]}: written to {folder}')
         if result['code'] != 0 or SETTINGS_FILE not in result['files']:
             rows.append((str(result['seed']), f'failed (exit {result["code"]})', '', '', ''))
             continue

@@ -45,7 +45,7 @@ RGB, DEPTH_RELIEF = 'rgb', 'depth_relief'  # a model's inputs (detector.json's "
 _RELIEF_SIGMA_PX = 8.0  # the smooth surface the relief is measured from, input pixels
 _RELIEF_GAIN = 20.0  # relief channel per metre (clipped to +-1: 5 cm and more)
 _RELIEF_STEP = 2  # the smooth surface is blurred at half the input's resolution
-_RELIEF_PAD_PX = 32  # 4 sigma of border reflected around the input before that
+_RELIEF_PAD_PX = round(4 * _RELIEF_SIGMA_PX)  # border reflected around the input before that
 
 
 def input_channels(inputs: list[str]) -> int:

@@ -3,6 +3,7 @@
 import errno
 import io
 from pathlib import Path
+import re
 
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
@@ -20,6 +21,8 @@ from ur_rg2_tools.bag import (
     recorded_qos,
     recover,
 )
+from ur_rg2_tools.info import format_info, read_info
+from ur_rg2_tools.info import main as info_main
 from ur_rg2_tools.msgdefs import DELIMITER, DefinitionNotFoundError, full_text, msg_file
 import yaml
 
@@ -119,12 +122,61 @@ def test_cut_short_file_is_refused_and_its_chunks_recovered(tmp_path):
 def test_bad_files_get_a_clear_error(tmp_path):
     with pytest.raises(RecordingError, match='cannot open .*No such file'):
         open_recording(tmp_path / 'missing.mcap')
+    # No MCAP magic bytes: not an MCAP file, and no advice to recover it.
     (tmp_path / 'text.mcap').write_text('not a recording')
-    with pytest.raises(RecordingError, match='not a complete MCAP file'):
+    with pytest.raises(RecordingError, match='not an MCAP file') as refused:
         open_recording(tmp_path / 'text.mcap')
+    assert 'recover' not in str(refused.value)
     with pytest.raises(RecordingError, match='not an MCAP file'):
         recover(tmp_path / 'text.mcap', tmp_path / 'out.mcap')
     assert not (tmp_path / 'out.mcap').exists()
+
+
+def test_info_prints_what_ros2_bag_info_prints(tmp_path, capsys):
+    whole = tmp_path / 'whole.mcap'
+    write_states(whole, 400).finish()
+    assert info_main([str(whole)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[:3] == ['Files:             whole.mcap',
+                         f'Bag size:          {whole.stat().st_size / 1024:.1f} KiB',
+                         'Storage id:        mcap']
+    assert 'Compression:       zstd' in lines
+    assert 'Duration:          3.990000000s' in lines  # 400 messages 10 ms apart
+    assert 'Start:             ' in lines[5] and lines[5].endswith('(1.000000000)')
+    assert 'End:               ' in lines[6] and lines[6].endswith('(4.990000000)')
+    assert 'Messages:          400' in lines
+    assert ('Topic information: Topic: /joint_states | Type: sensor_msgs/msg/JointState | '
+            'Count: 400 | Serialization Format: cdr') in lines
+    assert not any(line.startswith('Cut short') for line in lines)
+
+
+def test_info_reads_a_file_without_summary_through(tmp_path):
+    whole = tmp_path / 'whole.mcap'
+    write_states(whole, 400).finish()
+    data = whole.read_bytes()
+    cut = tmp_path / 'cut.mcap'
+    cut.write_bytes(data[:len(data) * 2 // 3])
+    info = read_info(cut)
+    kept = recover(cut, tmp_path / 'fixed.mcap').messages
+    assert info.messages == kept and [t.count for t in info.topics] == [kept]
+    assert info.compression == ['zstd'] and info.cut_short is not None
+    assert 'Cut short:' in format_info(info) and 'recover' in format_info(info)
+
+
+@pytest.mark.parametrize('name, content, reason', [
+    ('missing.mcap', None, 'cannot open .*missing.mcap: No such file or directory'),
+    ('.', None, 'cannot open .*: Is a directory'),
+    ('text.mcap', b'hello', "text.mcap is not an MCAP file \\(it does not start with MCAP's"),
+    ('magic.mcap', b'\x89MCAP0\r\n', 'magic.mcap ends within its MCAP header'),
+])
+def test_info_on_bad_input_is_one_error_line_and_exit_1(tmp_path, capsys, name, content,
+                                                         reason):
+    if content is not None:
+        (tmp_path / name).write_bytes(content)
+    assert info_main([str(tmp_path / name)]) == 1
+    out, err = capsys.readouterr()
+    assert out == '' and len(err.splitlines()) == 1
+    assert re.match(f'info: .*{reason}', err), err
 
 
 class FullDisk(io.RawIOBase):

@@ -68,6 +68,16 @@ def read_back(path) -> dict[str, list]:
     return messages
 
 
+def info_counts(env: dict[str, str], path, log) -> tuple[str, dict[str, int]]:
+    """Run ``ros2 run ur_rg2_tools info`` on ``path``; return its output and count per topic."""
+    info = Launched(['ros2', 'run', 'ur_rg2_tools', 'info', str(path)], env, log)
+    assert info.wait(60) == 0, info.output
+    counts = {topic: int(count) for topic, count in re.findall(
+        r'Topic: (\S+) \| Type: \S+ \| Count: (\d+) \| Serialization Format: cdr',
+        info.output)}
+    return info.output, counts
+
+
 def test_round_trip_record_the_sim_read_back_replay_into_vision(ros_graph, tmp_path):
     start_sim(ros_graph, camera_width=320, camera_height=240)
     counter = Witness(ros_graph)
@@ -92,6 +102,11 @@ def test_round_trip_record_the_sim_read_back_replay_into_vision(ros_graph, tmp_p
 
     recorded = read_back(path)
     assert sorted(recorded) == RECORDED
+    # info, as ros2 bag info: the counts of the file's summary.
+    output, counts = info_counts(ros_graph.env, path, tmp_path / 'info.log')
+    assert counts == {topic: len(messages) for topic, messages in recorded.items()}
+    assert f'Messages:          {sum(counts.values())}' in output
+    assert 'Storage id:        mcap' in output and 'Compression:       zstd' in output
     # /tf_static was published before the recorder started: latched, it is in the file.
     assert recorded['/tf_static'][0][2].transforms
     assert isinstance(deserialize_message(recorded['/tf_static'][0][1], TFMessage), TFMessage)
@@ -179,6 +194,10 @@ def test_a_killed_recorder_leaves_its_chunks_readable(ros_graph, tmp_path):
     assert recover.wait(60) == 0, recover.output
     recorded = read_back(fixed)['/camera/depth/image_raw']
     assert len(recorded) >= 4
+    # info reads the file without a summary through: the messages recover kept.
+    output, counts = info_counts(ros_graph.env, path, tmp_path / 'info.log')
+    assert counts == {'/camera/depth/image_raw': len(recorded)}
+    assert 'Cut short:' in output and 'recover' in output
     assert all(decoded.encoding == '32FC1' for _, _, decoded in recorded)
 
 
@@ -207,11 +226,13 @@ def test_bad_input_is_one_clear_error_and_nothing_lost(ros_graph, tmp_path):
                          '--all'], ros_graph.env, tmp_path / 'no_cache.log')
     assert no_cache.wait(60) == 2
     assert '--max-cache-size must be positive, not 0' in no_cache.output
-    # replay: a missing file and a file that is no recording.
+    # replay and info: a missing file and a file that is no recording (no advice to recover).
     (tmp_path / 'text.mcap').write_text('hello')
-    for name, reason in (('missing.mcap', 'No such file'),
-                         ('text.mcap', 'not a complete MCAP file')):
-        player = Launched(['ros2', 'run', 'ur_rg2_tools', 'replay', str(tmp_path / name)],
-                          ros_graph.env, tmp_path / f'{name}.log')
-        assert player.wait(60) == 1
-        assert reason in player.output and 'Traceback' not in player.output
+    for command in ('replay', 'info'):
+        for name, reason in (('missing.mcap', 'No such file'),
+                             ('text.mcap', 'not an MCAP file')):
+            player = Launched(['ros2', 'run', 'ur_rg2_tools', command, str(tmp_path / name)],
+                              ros_graph.env, tmp_path / f'{command}-{name}.log')
+            assert player.wait(60) == 1
+            assert reason in player.output and 'Traceback' not in player.output
+            assert 'recover' not in player.output

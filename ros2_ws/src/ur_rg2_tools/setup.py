@@ -24,6 +24,7 @@ setup(
             'record = ur_rg2_tools.entry:record',
             'replay = ur_rg2_tools.entry:replay',
             'recover = ur_rg2_tools.entry:recover',
+            'info = ur_rg2_tools.entry:info',
             'view3d = ur_rg2_tools.entry:view3d',
         ],
     },

@@ -22,7 +22,7 @@ from mcap.exceptions import McapError
 from mcap.reader import SeekingReader
 from mcap.records import Channel, Header, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
-from mcap.writer import CompressionType, Writer
+from mcap.writer import MCAP0_MAGIC, CompressionType, Writer
 import yaml
 
 PROFILE = 'ros2'
@@ -38,6 +38,19 @@ READ_ERRORS = (McapError, struct.error, ValueError, EOFError, RuntimeError, OSEr
 
 class RecordingError(Exception):
     """A file that cannot be read as a recording, with the reason and what to do."""
+
+
+def check_magic(stream: BinaryIO, name: str | os.PathLike) -> None:
+    """Raise RecordingError unless ``stream`` starts with MCAP's magic bytes; rewind it.
+
+    A file without them is something else (text, another format), which ``recover`` cannot help
+    with either; a file with them and a broken end is an MCAP file cut short.
+    """
+    magic = stream.read(len(MCAP0_MAGIC))
+    stream.seek(0)
+    if magic != MCAP0_MAGIC:
+        raise RecordingError(f"{name} is not an MCAP file (it does not start with MCAP's magic "
+                             'bytes)')
 
 
 def _duration(nanoseconds: int) -> dict[str, int]:
@@ -180,6 +193,11 @@ def open_recording(path: str | os.PathLike) -> Recording:
     except OSError as error:
         raise RecordingError(f'cannot open {path}: {error.strerror}') from None
     try:
+        check_magic(stream, path)
+    except RecordingError:
+        stream.close()
+        raise
+    try:
         reader = SeekingReader(stream)
         summary = reader.get_summary()
         if summary is None or summary.statistics is None:
@@ -203,19 +221,22 @@ class Recovered(NamedTuple):
     error: str | None  # why reading stopped before the end, None for a complete file
 
 
-def readable_records(stream: BinaryIO) -> Iterator[Any]:
+def readable_records(stream: BinaryIO, emit_chunks: bool = False) -> Iterator[Any]:
     """Yield the records of an MCAP stream up to its end or up to its first incomplete record.
 
-    The messages of every complete chunk come out; a chunk cut short does not. Raises
-    RecordingError when the stream is no MCAP at all. The generator's return value (from
-    ``yield from``) is the error that stopped it, or None.
+    The messages of every complete chunk come out (the chunks themselves with
+    ``emit_chunks``); a chunk cut short does not. Raises RecordingError when the stream is no
+    MCAP at all, or ends before its header. The generator's return value (from ``yield
+    from``) is the error that stopped it, or None.
     """
-    reader = StreamReader(stream)
-    records = reader.records
+    name = getattr(stream, 'name', 'the stream')
+    check_magic(stream, name)
+    records = StreamReader(stream, emit_chunks=emit_chunks).records
     try:
         first = next(records)
     except READ_ERRORS as error:
-        raise RecordingError(f'not an MCAP file ({type(error).__name__}: {error})') from None
+        raise RecordingError(f'{name} ends within its MCAP header: nothing to read '
+                             f'({type(error).__name__}: {error})'.replace(': )', ')')) from None
     yield first
     try:
         yield from records

@@ -18,6 +18,11 @@ def recover() -> int:
     return run_main('ur_rg2_tools.recover')
 
 
+def info() -> int:
+    """Print what ``ros2 bag info`` prints about a recording (ur_rg2_tools.info)."""
+    return run_main('ur_rg2_tools.info')
+
+
 def view3d() -> int:
     """Run the 3D view (ur_rg2_tools.view3d_node)."""
     return run_main('ur_rg2_tools.view3d_node')

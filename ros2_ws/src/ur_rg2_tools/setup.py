@@ -25,6 +25,7 @@ setup(
             'replay = ur_rg2_tools.entry:replay',
             'recover = ur_rg2_tools.entry:recover',
             'info = ur_rg2_tools.entry:info',
+            'to_lerobot = ur_rg2_tools.entry:to_lerobot',
             'view3d = ur_rg2_tools.entry:view3d',
         ],
     },

@@ -23,6 +23,11 @@ def info() -> int:
     return run_main('ur_rg2_tools.info')
 
 
+def to_lerobot() -> int:
+    """Write recordings as a LeRobot data set (ur_rg2_tools.to_lerobot)."""
+    return run_main('ur_rg2_tools.to_lerobot')
+
+
 def view3d() -> int:
     """Run the 3D view (ur_rg2_tools.view3d_node)."""
     return run_main('ur_rg2_tools.view3d_node')

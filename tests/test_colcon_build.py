@@ -2,6 +2,8 @@
 
 colcon runs from the venv with the pip rclpy, as a ROS user's workspace would on top of
 /opt/ros: the build is a copy of ros2_ws in a temporary directory, so nothing lands in the tree.
+The one ament_cmake package, ur_rg2_interfaces, is generated with the venv's PyPI ROS wheels as
+scripts/build-interfaces builds it (the same CMake options).
 Every package but the sim is built first on its own and its nodes start with neither the sim
 nor pybullet importable, as on a real robot's computer.
 """
@@ -60,6 +62,10 @@ class HideSim:
 sys.meta_path.insert(0, HideSim())
 """
 STARTUP_TIMEOUT = 60.0  # s: five nodes importing rclpy at once on a loaded 2-core machine
+# What scripts/build-interfaces gives CMake for the PyPI ROS wheels (a ROS install needs none).
+PIP_CMAKE_ARGS = (
+    f'-DCMAKE_PROJECT_INCLUDE={ROOT}/interfaces/cmake/drop_foreign_include_dirs.cmake',
+    f'-DPython3_EXECUTABLE={sys.executable}', '-DBUILD_TESTING=OFF')
 
 
 def in_workspace(ws: Path, *command: str) -> list[str]:
@@ -75,7 +81,7 @@ def colcon_build(ws: Path, *options: str) -> None:
     started = time.monotonic()
     build = subprocess.run(
         [str(colcon), '--log-base', 'log', 'build', *options,
-         '--event-handlers', 'console_direct-'],
+         '--event-handlers', 'console_direct-', '--cmake-args', *PIP_CMAKE_ARGS],
         cwd=ws, capture_output=True, text=True, timeout=240,
         env=dict(os.environ, COLCON_HOME=str(ws / '.colcon')))  # ignore the user's defaults
     assert build.returncode == 0, f'colcon build failed:\n{build.stdout}\n{build.stderr}'

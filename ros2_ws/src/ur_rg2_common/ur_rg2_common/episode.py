@@ -6,6 +6,9 @@
 rest and ``to_lerobot`` cuts a recording into episodes by them (ur_rg2_tools.lerobot).
 """
 
+from collections.abc import Iterator
+from contextlib import contextmanager
+
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import String
@@ -34,3 +37,14 @@ class EpisodeMarkers:
     def end(self, success: bool) -> None:
         """Mark the end of the episode: a success or a failure."""
         self._publisher.publish(String(data=SUCCESS if success else FAILURE))
+
+    @contextmanager
+    def marked(self) -> Iterator[None]:
+        """Mark an episode around a block: a success when it returns, a failure when it raises."""
+        self.start()
+        try:
+            yield
+        except BaseException:
+            self.end(success=False)
+            raise
+        self.end(success=True)

@@ -25,6 +25,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, String
 from std_srvs.srv import Trigger
 from ur_rg2_common.contract import GRIPPER_ACTION, LATCHED_QOS, TRAJECTORY_ACTION
+from ur_rg2_common.episode import EpisodeMarkers
 from ur_rg2_common.parameters import declare_parameters
 from ur_rg2_common.spin import run_node
 from ur_rg2_common.tf_buffer import FrameLookupError, pose_matrix
@@ -89,6 +90,7 @@ class MotionNode(Node):
             self._trajectory, self._gripper, self.state, self._send_lock, self._check_pick,
             self._check_vision, self._vision_done, lambda: self._speed_scaling)
         self._result_pub = self.create_publisher(String, 'pick_ball/result', LATCHED_QOS)
+        self._episodes = EpisodeMarkers(self)  # each pick an episode on 'episode'
         self.create_service(Trigger, 'pick_ball', self._on_pick,
                             callback_group=self.blocking_group)
 
@@ -243,8 +245,9 @@ class MotionNode(Node):
                              (self._gripper, GRIPPER_ACTION)):
             if not client.wait_for_server(timeout_sec=FRAME_WAIT_S):
                 raise PickError(f'{name} is not available (is the sim or the driver running?)')
-        return run_pick(self._arm_io, arm, ball,
-                        pick_settings(lambda name: self.get_parameter(name).value))
+        with self._episodes.marked():
+            return run_pick(self._arm_io, arm, ball,
+                            pick_settings(lambda name: self.get_parameter(name).value))
 
     def _check_pick(self) -> None:
         """Raise when the running pick was cancelled, or lost vision while it needs it."""

@@ -276,6 +276,8 @@ class VideoWriter:
         self.path = path
         self.fps = fps
         self.codec, self._options = choose_codec()
+        # SVT-AV1 prints its configuration to stderr unless told to say errors only.
+        os.environ.setdefault('SVT_LOG', '1')
         path.parent.mkdir(parents=True)
         self._container = av.open(str(path), 'w')
         self._stream = None

@@ -16,6 +16,7 @@ from launch.launch_description_sources import get_launch_description_from_python
 from launch.utilities import perform_substitutions
 import pytest
 from ur_rg2_bringup.graph import describe_exit
+from ur_rg2_bringup.launch_defaults import file_parameter, next_port
 from ur_rg2_bringup.launch_graph import graph_launch_file, warnings_and_errors
 from ur_rg2_bringup.run import UsageError, parse_args
 import yaml
@@ -58,34 +59,95 @@ def launch_arguments() -> dict:
     return {argument.name: argument for argument in description.get_launch_arguments()}
 
 
+SHARE = Path(get_package_share_directory('ur_rg2_bringup'))
+EXAMPLES = sorted((ROOT / 'ros2_ws/src/ur_rg2_bringup/config/examples').glob('*.yaml'))
+
+
+def argument_values(**given: str) -> dict[str, str]:
+    """Return every launch argument's value as launch sets it, ``given`` on the command line."""
+    context = LaunchContext()
+    context.launch_configurations.update(given)
+    for argument in launch_arguments().values():
+        argument.execute(context)  # the default where not given; the choices checked
+    return dict(context.launch_configurations)
+
+
 def test_the_launch_file_declares_the_contract_arguments_with_descriptions_and_defaults():
     arguments = launch_arguments()
     assert list(arguments) == ['use_sim', 'robot_model', 'gui', 'camera_rate', 'port',
-                               'namespace', 'view3d', 'params_file']
-    context = LaunchContext()
-    defaults = {name: perform_substitutions(context, argument.default_value)
-                for name, argument in arguments.items()}
-    assert defaults == {
+                               'namespace', 'view3d', 'view3d_port', 'detector', 'params_file']
+    assert argument_values() == {
         'use_sim': 'true', 'robot_model': 'ur5', 'gui': 'false', 'camera_rate': '30.0',
-        'port': '8080', 'namespace': '', 'view3d': 'false',
-        'params_file': str(Path(get_package_share_directory('ur_rg2_bringup'))
-                           / 'config' / 'graph.yaml')}
-    assert Path(defaults['params_file']).resolve() == (
-        ROOT / 'ros2_ws/src/ur_rg2_bringup/config/graph.yaml')
+        'port': '8080', 'namespace': '', 'view3d': 'false', 'view3d_port': '8081',
+        'detector': 'color', 'params_file': str(SHARE / 'config' / 'graph.yaml')}
+    shipped = perform_substitutions(LaunchContext(), arguments['params_file'].default_value)
+    assert Path(shipped).resolve() == ROOT / 'ros2_ws/src/ur_rg2_bringup/config/graph.yaml'
     for name, argument in arguments.items():
         assert len(argument.description) > 20, name
     assert arguments['robot_model'].choices == ['ur5', 'ur3']
+    assert arguments['detector'].choices == ['color', 'learned']
     for name in ('use_sim', 'gui', 'view3d'):
         assert arguments[name].choices == ['true', 'false'], name
+
+
+def test_the_pages_never_share_a_port_by_default():
+    assert argument_values(port='8081')['view3d_port'] == '8082'
+    assert argument_values(port='0')['view3d_port'] == '0'  # both any free port
+    assert argument_values(port='8081', view3d_port='9000')['view3d_port'] == '9000'
+    assert [next_port(port) for port in ('1', '8080', '65535', '0')] == [
+        '2', '8081', '0', '0']
+    for bad in ('abc', '-1', '65536', ''):
+        with pytest.raises(ValueError, match='is no port number'):
+            next_port(bad)
+
+
+def test_an_argument_not_given_takes_the_params_files_value(tmp_path):
+    params_file = tmp_path / 'p.yaml'
+    params_file.write_text('/**/ur_rg2_sim:\n  ros__parameters:\n    robot_model: ur3\n'
+                           '    gui: true\n    camera_rate: 10\n'
+                           '/arm1/ur_rg2_viewer:\n  ros__parameters:\n    port: 9000\n'
+                           '/**:\n  ros__parameters:\n    detector: learned\n')
+    values = argument_values(params_file=str(params_file))
+    assert {name: values[name] for name in (
+        'robot_model', 'gui', 'camera_rate', 'port', 'view3d_port', 'detector')} == {
+        'robot_model': 'ur3', 'gui': 'true', 'camera_rate': '10', 'port': '8080',
+        'view3d_port': '8081', 'detector': 'learned'}
+    # The viewer's section is for the namespace /arm1 only; an argument given wins.
+    values = argument_values(params_file=str(params_file), namespace='/arm1', gui='false')
+    assert (values['port'], values['view3d_port'], values['gui']) == ('9000', '9001', 'false')
+    assert file_parameter(params_file, '/ur_rg2_vision', 'model_dir') is None
+    with pytest.raises(ValueError, match=r'params_file .*missing.yaml: cannot be read: No such'):
+        file_parameter(tmp_path / 'missing.yaml', '/ur_rg2_sim', 'gui')
+    params_file.write_text('- a list\n')
+    with pytest.raises(ValueError, match='not a parameters file'):
+        file_parameter(params_file, '/ur_rg2_sim', 'gui')
+
+
+@pytest.mark.parametrize('example', EXAMPLES, ids=lambda path: path.name)
+def test_each_example_params_file_is_installed_and_sets_only_declared_parameters(example):
+    installed = SHARE / 'config' / 'examples' / example.name
+    assert installed.resolve() == example
+    shipped = yaml.safe_load((SHARE / 'config' / 'graph.yaml').read_text())
+    declared = {node: set(section['ros__parameters']) for node, section in shipped.items()}
+    declared['/**/ur_rg2_vision'].add('detector')
+    for node, section in yaml.safe_load(example.read_text()).items():
+        assert set(section['ros__parameters']) <= declared[node], (example.name, node)
 
 
 def test_show_args_shows_every_argument_with_its_default():
     shown = subprocess.run(['ros2', 'launch', 'ur_rg2_bringup', 'graph.launch.py',
                             '--show-args'], capture_output=True, text=True, timeout=60)
     assert shown.returncode == 0, shown.stderr
-    for name, default in (('use_sim', 'true'), ('robot_model', 'ur5'), ('gui', 'false'),
-                          ('camera_rate', '30.0'), ('port', '8080'), ('view3d', 'false')):
-        assert re.search(rf"'{name}':\n .*\n +\(default: '{re.escape(default)}'\)",
+    for name, default in (('use_sim', "'true'"),
+                          ('robot_model', "ur_rg2_sim's robot_model in params_file, else 'ur5'"),
+                          ('gui', "ur_rg2_sim's gui in params_file, else 'false'"),
+                          ('camera_rate', "ur_rg2_sim's camera_rate in params_file, else '30.0'"),
+                          ('port', "ur_rg2_viewer's port in params_file, else '8080'"),
+                          ('view3d', "'false'"),
+                          ('view3d_port', "ur_rg2_view3d's port in params_file, else "
+                                          "LaunchConfig('port') + 1 (0: any free port)"),
+                          ('detector', "ur_rg2_vision's detector in params_file, else 'color'")):
+        assert re.search(rf"'{name}':\n .*\n +\(default: {re.escape(default)}\)",
                          shown.stdout), (name, shown.stdout)
     assert "FindPackageShare(pkg='ur_rg2_bringup')" in shown.stdout
 
@@ -96,11 +158,14 @@ def test_the_params_file_has_a_section_per_node_of_the_graph():
                             '/**/ur_rg2_viewer', '/**/ur_rg2_view3d']
     assert params['/**/ur_rg2_sim']['ros__parameters']['camera_rate'] == 30.0
     assert params['/**/ur_rg2_viewer']['ros__parameters']['port'] == 8080
-    assert params['/**/ur_rg2_view3d']['ros__parameters']['port'] == 8081
+    # The launch file's: the 3D view's port follows the viewer's, DEFAULT_DETECTOR.
+    assert 'port' not in params['/**/ur_rg2_view3d']['ros__parameters']
+    assert 'detector' not in params['/**/ur_rg2_vision']['ros__parameters']
 
 
-KNOWN = ['use_sim', 'robot_model', 'gui', 'camera_rate', 'port', 'namespace', 'view3d',
-         'params_file']
+KNOWN = {'use_sim': ['true', 'false'], 'robot_model': ['ur5', 'ur3'], 'gui': ['true', 'false'],
+         'camera_rate': None, 'port': None, 'namespace': None, 'view3d': ['true', 'false'],
+         'view3d_port': None, 'detector': ['color', 'learned'], 'params_file': None}
 
 
 def test_the_command_line_splits_launch_arguments_from_keys_arguments():
@@ -122,6 +187,22 @@ def test_a_parameter_that_is_no_launch_argument_is_refused_with_a_suggestion():
         parse_args(['camera_rte:=15'], KNOWN)
     with pytest.raises(UsageError, match="'frames_dir' is not an argument"):
         parse_args(['frames_dir:=/tmp/f'], KNOWN)
+
+
+def test_a_value_that_is_none_of_the_choices_is_refused_once():
+    with pytest.raises(UsageError, match=r'^robot_model:=ur10 is none of its choices: ur5, ur3$'):
+        parse_args(['robot_model:=ur10'], KNOWN)
+    with pytest.raises(UsageError, match='detector:=yolo is none of its choices: color, learned'):
+        parse_args(['detector:=yolo'], KNOWN)
+
+
+def test_a_bad_value_launch_reads_stops_it_with_one_error_line():
+    ran = subprocess.run([sys.executable, '-m', 'ur_rg2_bringup.run', 'port:=abc'],
+                         stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                         stderr=subprocess.STDOUT, text=True, timeout=120)
+    assert ran.returncode == 1, ran.stdout
+    assert ran.stdout.count('port:=abc is no port number (0-65535)') == 1, ran.stdout
+    assert 'Traceback' not in ran.stdout
 
 
 @pytest.mark.parametrize('arg', ['--gui', 'robot_model', ':=3', 'sim:gui:=3'])

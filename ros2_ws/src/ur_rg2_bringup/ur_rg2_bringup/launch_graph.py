@@ -27,6 +27,8 @@ import launch.logging
 # Shutdown reasons that are a normal end of the graph, in launch's own words: a SIGINT (what
 # the graph executable sends to stop it), or nothing left to run.
 NORMAL_ENDS = ('ctrl-c (SIGINT)', 'idle')
+# The start of the shutdown reason of an exception in launch, which launch logs as an error too.
+LAUNCH_ERROR = 'Caught exception in launch'
 # A node's routine console line, as rcutils prints it (launch puts "[sim-1] " before it), or
 # the banner pybullet prints on stderr when it is imported.
 _ROUTINE_LINE = re.compile(r'(\x1b\[[0-9;]*m)*\[(INFO|DEBUG)\]|pybullet build time: ')
@@ -92,7 +94,8 @@ def run_graph(launch_arguments: Sequence[str], quiet: bool = False) -> int:
     if log_file:
         print(f'bringup: graph stopped; its log: {log_file}', file=sys.stderr, flush=True)
     if reasons and reasons[0] not in NORMAL_ENDS:
-        print(f'bringup: {reasons[0]}', file=sys.stderr, flush=True)
+        if not reasons[0].startswith(LAUNCH_ERROR):  # else launch's error line said it last
+            print(f'bringup: {reasons[0]}', file=sys.stderr, flush=True)
         return 1
     return returncode
 

@@ -16,7 +16,7 @@ left here is what a launch file cannot do, in a parent process of launch:
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 import ctypes
 from dataclasses import dataclass
 import difflib
@@ -48,12 +48,14 @@ which node and how, and the exit status is 1. Nodes are stopped with SIGINT, the
 
 arguments:
   ARGUMENT:=VALUE   an argument of graph.launch.py: use_sim, robot_model, gui, camera_rate,
-                    port, namespace, view3d, params_file (e.g. robot_model:=ur3 gui:=true
-                    camera_rate:=15.0); ros2 launch ur_rg2_bringup graph.launch.py --show-args
-                    describes them. Any other parameter of the graph's nodes goes in a
-                    parameters file: copy the package's config/graph.yaml (ros2 pkg prefix
-                    ur_rg2_bringup, then share/ur_rg2_bringup/config/) and pass
-                    params_file:=YOUR_FILE.
+                    port, namespace, view3d, view3d_port, detector, params_file (e.g.
+                    robot_model:=ur3 gui:=true camera_rate:=15.0 detector:=learned);
+                    ros2 launch ur_rg2_bringup graph.launch.py --show-args describes them.
+                    Any other parameter of the graph's nodes goes in a parameters file: copy
+                    the package's config/graph.yaml (ros2 pkg prefix ur_rg2_bringup, then
+                    share/ur_rg2_bringup/config/) and pass params_file:=YOUR_FILE; ready-made
+                    ones are in config/examples/ there (a white ball with the learned
+                    detector, a UR3 with a slower camera).
 
 options:
   --headless        do not start keys even when standard input is a terminal
@@ -77,16 +79,18 @@ class Options:
     """ROS arguments for keys (the graph's namespace, then everything after ``--ros-args``)."""
 
 
-def launch_argument_names() -> list[str]:
-    """Return the names of graph.launch.py's arguments, as its DeclareLaunchArguments say."""
+def launch_arguments() -> dict[str, list[str] | None]:
+    """Return graph.launch.py's arguments and their choices, as its DeclareLaunchArguments say."""
     description = get_launch_description_from_python_launch_file(graph_launch_file())
-    return [argument.name for argument in description.get_launch_arguments()]
+    return {argument.name: argument.choices for argument in description.get_launch_arguments()}
 
 
-def parse_args(argv: Sequence[str], known: Sequence[str]) -> Options:
+def parse_args(argv: Sequence[str], known: Mapping[str, Sequence[str] | None]) -> Options:
     """Turn ``scripts/run`` arguments into launch arguments and keys' ROS arguments.
 
-    ``known`` are the launch file's argument names; any other NAME:=VALUE is refused.
+    ``known`` maps the launch file's argument names to their choices (None: any value); any
+    other NAME:=VALUE is refused, and so is a value that is none of its argument's choices
+    (here, once, rather than by launch, which says it twice).
     """
     headless = False
     launch_arguments: list[tuple[str, str]] = []
@@ -109,6 +113,9 @@ def parse_args(argv: Sequence[str], known: Sequence[str]) -> Options:
                     f'{name!r} is not an argument of graph.launch.py'
                     + (f' (did you mean {close[0]}?)' if close else '')
                     + '; set other parameters in a file given as params_file:=FILE')
+            if known[name] is not None and value not in known[name]:
+                raise UsageError(f'{name}:={value} is none of its choices: '
+                                 + ', '.join(known[name]))
             launch_arguments.append((name, value))
             if name == 'namespace' and value:
                 keys_arguments[:0] = ['-r', f'__ns:={value}']
@@ -215,7 +222,7 @@ class _Graph:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the graph; return the process exit status."""
     try:
-        options = parse_args(sys.argv[1:] if argv is None else argv, launch_argument_names())
+        options = parse_args(sys.argv[1:] if argv is None else argv, launch_arguments())
     except UsageError as exc:
         print(f'bringup: {exc}\n(scripts/run --help shows the usage)', file=sys.stderr)
         return 2

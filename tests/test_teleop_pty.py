@@ -170,8 +170,9 @@ def call(keys: KeysTerminal, key: str, service: str) -> str:
     deadline = time.monotonic() + CONNECT_TIMEOUT
     while True:
         keys.press(key)
-        outcome = keys.expect(rf'{service}: (done|FAILED|call failed|service not available)')
-        if outcome.group(1) != 'service not available':
+        outcome = keys.expect(rf'{service}: (done|FAILED|call failed|service not available)'
+                              '|not ready yet')
+        if outcome.group(1) not in ('service not available', None):
             return outcome.group(1)
         assert time.monotonic() < deadline, f'{service} never became available'
         time.sleep(0.2)
@@ -299,5 +300,34 @@ def test_m_switches_to_tool_mode_and_g_picks(ros_graph, keys):
     assert call(keys, 'g', '/pick_ball') == 'done'
     keys.expect(r'picked the ball at \(0\.400, -0\.300, -0\.090\) m in base_link')
     assert picks
+    keys.press('p')
+    assert keys.wait() == 0
+
+
+def test_keys_wait_for_the_graph_refusing_its_keys_until_it_is_up(ros_graph, keys):
+    """The screen names what is missing; g at once is refused with why, a later g picks."""
+    keys.expect(r'starting: waiting for sim, vision, motion')
+    keys.press('g')
+    keys.expect(r'not ready yet: waiting for motion')
+    keys.press('h')  # keys that need no node work meanwhile
+    keys.expect(BANNER)
+
+    graph = ros_graph.node('graph_stand_in')
+    picks = []
+
+    def serve(name, _request, response):
+        picks.extend([name] if name == 'pick_ball' else [])
+        response.success, response.message = True, f'{name} stand-in'
+        return response
+
+    for name in ('gripper/close', 'gripper/open', 'reset', 'vision/save_frame', 'pick_ball'):
+        graph.create_service(Trigger, name, lambda req, resp, name=name: serve(name, req, resp))
+    graph.create_subscription(JointState, 'joint_jog', lambda _m: None, 10)
+    graph.create_subscription(TransformStamped, 'tool_jog', lambda _m: None, 10)
+    keys.expect(r'(?m)^ready\r?$', timeout=CONNECT_TIMEOUT)
+    keys.press('g')
+    keys.expect(r'/pick_ball: done: pick_ball stand-in')
+    assert picks == ['pick_ball']
+    assert 'service not available' not in keys.output
     keys.press('p')
     assert keys.wait() == 0

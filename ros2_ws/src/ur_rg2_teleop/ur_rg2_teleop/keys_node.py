@@ -43,6 +43,7 @@ from ur_rg2_teleop.keymap import (
     smaller_step,
     tool_step,
 )
+from ur_rg2_teleop.readiness import Readiness, needs
 from ur_rg2_teleop.terminal import KeyReader, Stop, raw_mode, signal_pipe
 
 USAGE_ERROR = 2
@@ -54,6 +55,8 @@ _JOG_QUEUE_DEPTH = 100
 TOOL_FRAME = 'base_link'
 # Services whose success means the arm moved: the pose is shown once it settles.
 _ARM_SERVICES = ('reset', 'pick_ball')
+# How often keys looks whether the nodes it waits for have come up, s.
+_READINESS_PERIOD = 0.2
 
 
 class KeysNode(Node):
@@ -82,6 +85,7 @@ class KeysNode(Node):
         self._watcher = SettleWatcher()
         self._angles: list[float] | None = None
         self._watcher.moved(time.monotonic())  # show the pose once at start-up
+        self._readiness: Readiness | None = None  # set by watch_readiness
 
     @property
     def step_deg(self) -> float:
@@ -101,7 +105,10 @@ class KeysNode(Node):
     def handle_key(self, key: str) -> bool:
         """Act on one key; return False when it asks to quit."""
         action = action_for(key)
-        if isinstance(action, Jog) and self._mode is Mode.TOOL:
+        refusal = self._readiness and self._readiness.refusal(needs(action, self._mode))
+        if refusal:
+            self._console.line(refusal)
+        elif isinstance(action, Jog) and self._mode is Mode.TOOL:
             self._tool_jog(action)
         elif isinstance(action, Jog):
             self._jog(action)
@@ -126,6 +133,30 @@ class KeysNode(Node):
         else:
             self._console.line(f'{describe_key(key)} has no function (h: help)')
         return True
+
+    def watch_readiness(self) -> str:
+        """Refuse the keys of the nodes not up yet, showing each that comes; return the status.
+
+        The status line (``starting: waiting for sim, vision, motion``) is the caller's to
+        show, so that it goes out with the key table in one write.
+        """
+        self._readiness = Readiness()
+        self._readiness_timer = self.create_timer(_READINESS_PERIOD, self._check_readiness)
+        return self._readiness.status()
+
+    def _check_readiness(self) -> None:
+        publishers = {'joint_jog': self._jog_publisher, 'tool_jog': self._tool_jog_publisher}
+
+        def available(name: str) -> bool:
+            if name in publishers:
+                return publishers[name].get_subscription_count() > 0
+            return self._trigger_clients[name].service_is_ready()  # as _call finds it
+
+        status = self._readiness.update(available)
+        if status is not None:
+            self._console.line(status)
+        if self._readiness.ready:
+            self._readiness_timer.cancel()
 
     def _jog(self, jog: Jog) -> None:
         message = JointState()
@@ -234,7 +265,8 @@ def main(args: list[str] | None = None) -> int:
             executor.add_node(node)
             spinner.start()
             with raw_mode(stdin):
-                console.line(help_text(node.step_deg, node.mode, node.step_mm))
+                console.line(f'{help_text(node.step_deg, node.mode, node.step_mm)}\n'
+                             f'{node.watch_readiness()}')
                 _key_loop(node, KeyReader(stdin, stop_fd), spinner, spin_errors)
     except (Stop, EOFError):
         pass

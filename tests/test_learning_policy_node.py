@@ -15,6 +15,7 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
+from test_episode_markers import Markers
 from tf2_msgs.msg import TFMessage
 from ur_rg2_common.contract import LATCHED_QOS
 from ur_rg2_common.tf_buffer import TransformBuffer
@@ -53,6 +54,7 @@ def test_policy_run_drives_the_tcp_to_the_ball(ros_graph):
             driving.append(message.data)
 
     probe.create_subscription(Bool, 'policy/driving', on_driving, LATCHED_QOS)
+    markers = Markers(probe)
     ball = probe.create_publisher(PointStamped, 'ball/position', 10)
     run = probe.create_client(Trigger, 'policy/run')
     wait_for(run.service_is_ready, TIMEOUT, 'the policy/run service')
@@ -98,6 +100,8 @@ def test_policy_run_drives_the_tcp_to_the_ball(ros_graph):
     # This process's /tf may lag the node's last step on a loaded machine.
     wait_for(lambda: tcp_to_ball_top() < 1.5 * REACH_TOLERANCE, 10.0,
              f'the TCP at the ball top (it is {tcp_to_ball_top():.3f} m away)')
+    # The episode on 'episode' too; the refused runs marked none.
+    wait_for(lambda: markers() == ['start', 'success'], 10.0, 'a start and a success marker')
 
 
 PICK_PLACEMENTS = 5

@@ -28,6 +28,7 @@ from ur_rg2_common.contract import (
     RG2_MAX_OPENING,
     TRAJECTORY_ACTION,
 )
+from ur_rg2_common.episode import EpisodeMarkers
 from ur_rg2_common.parameters import ParameterSpec, declare_parameters
 from ur_rg2_common.spin import run_node
 from ur_rg2_motion.kinematics import BASE_LINK, ArmKinematics, KinematicsError
@@ -75,6 +76,7 @@ class PolicyNode(Node):
         self._gripper = ActionClient(self, GripperCommand, GRIPPER_ACTION)
         self._driving = self.create_publisher(Bool, 'policy/driving', LATCHED_QOS)
         self._driving.publish(Bool(data=False))
+        self._episodes = EpisodeMarkers(self)  # each episode on 'episode' too
         # policy/run may wait for the tree (bounded): on a worker thread (run_node's
         # BlockingGroupExecutor), so that the transforms it waits for keep arriving.
         self.blocking_group = ReentrantCallbackGroup()
@@ -128,6 +130,7 @@ class PolicyNode(Node):
             self.get_logger().warning(f'policy/run {response.message}')
             return response
         self._driving.publish(Bool(data=True))
+        self._episodes.start()
         self._send(trajectory.times, trajectory.positions).add_done_callback(
             lambda future: self._on_start_goal(future, episode))
         response.success = True
@@ -228,6 +231,7 @@ class PolicyNode(Node):
                 return
             self._episode = None
         self._driving.publish(Bool(data=False))
+        self._episodes.end(success=reached)
         seconds = time.monotonic() - episode.started
         # rclpy refuses two severities from one call site: one call each.
         if reached:

@@ -1,0 +1,47 @@
+"""Episode markers on ``episode`` (std_msgs/String): the pick marks its own episodes.
+
+The sim and the motion node run in-process as in test_motion_node; a probe listens to
+``episode`` as the recorder does.
+"""
+
+import threading
+
+from conftest import wait_for
+from std_msgs.msg import String
+from test_motion_node import TIMEOUT, Rig
+from ur_rg2_common.episode import EPISODE_QOS, EPISODE_TOPIC
+
+BALL = (0.4, -0.3, 0.03)  # world, on the floor
+
+
+class Markers:
+    """What a node published on ``episode``."""
+
+    def __init__(self, node) -> None:
+        self._lock = threading.Lock()
+        self._seen: list[str] = []
+        node.create_subscription(String, EPISODE_TOPIC, self._on, EPISODE_QOS)
+
+    def _on(self, message: String) -> None:
+        with self._lock:
+            self._seen.append(message.data)
+
+    def __call__(self) -> list[str]:
+        with self._lock:
+            return list(self._seen)
+
+
+def test_a_pick_is_an_episode_and_a_refused_pick_none(ros_graph):
+    rig = Rig(ros_graph, ball_position=list(BALL))
+    markers = Markers(rig.node)
+    wait_for(lambda: rig.node.count_publishers(EPISODE_TOPIC), TIMEOUT, 'the markers publisher')
+    rig.show_ball(*BALL)
+    picked = rig.pick()
+    assert picked.success, picked.message
+    assert markers() == ['start', 'success']
+    refused = rig.pick()  # the ball was seen more than ball_timeout ago: no episode
+    assert not refused.success and markers() == ['start', 'success']
+    rig.show_ball(0.3, 0.2, 0.03)  # where there is no ball: the pick drops the ball and misses
+    missed = rig.pick()
+    assert not missed.success, missed.message
+    assert markers() == ['start', 'success', 'start', 'failure']

@@ -204,7 +204,7 @@ class MotionNode(Node):
         if busy:
             response.success = False
             response.message = 'refused: a pick is already running'
-            self.get_logger().warning(f'pick_ball {response.message}')
+            self.get_logger().info(f'pick_ball {response.message}')
             return response
         started = time.monotonic()
         ball = None
@@ -220,7 +220,7 @@ class MotionNode(Node):
             where = f'ball at {_xyz(ball)} m in {BASE_LINK}: ' if ball is not None else ''
             response.success = False
             response.message = f'{where}{error} (after {time.monotonic() - started:.1f} s)'
-            self.get_logger().warning(f'pick_ball failed: {response.message}')
+            self.get_logger().info(f'pick_ball failed: {response.message}')
         finally:
             self._pick_needs_vision = False
             with self._lock:

@@ -9,8 +9,9 @@ import pytest
 from rclpy.exceptions import InvalidParameterValueException
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
+from std_msgs.msg import String
 from std_srvs.srv import Trigger
-from ur_rg2_common.contract import ARM_JOINTS
+from ur_rg2_common.contract import ARM_JOINTS, LATCHED_QOS
 from ur_rg2_teleop.display import Console
 from ur_rg2_teleop.keys_node import KeysNode
 
@@ -177,3 +178,20 @@ def test_angles_are_shown_once_when_the_move_is_over(ros_graph):
     finally:
         stop.set()
         thread.join()
+
+
+def test_policy_episode_outcomes_are_shown_on_one_line_each(ros_graph):
+    policy = ros_graph.node('policy_stand_in')
+    results = policy.create_publisher(String, 'policy/result', LATCHED_QOS)
+    results.publish(String(data='success: an episode before keys started (1.0 s)'))
+    keys = Keys(ros_graph)
+    wait_for(lambda: results.get_subscription_count() > 0, 10.0, 'keys to subscribe')
+    results.publish(String(data='success: picked the ball: held 12 cm above the floor after '
+                                '40 steps (6.3 s)'))
+    results.publish(String(data='failed: missed the ball:\nopen after 50 steps (7.9 s)'))
+    wait_for(lambda: len(keys.lines()) == 2, 10.0, 'two outcome lines')
+    assert keys.lines() == [
+        'policy episode: done: picked the ball: held 12 cm above the floor after 40 steps '
+        '(6.3 s)',
+        'policy episode: FAILED: missed the ball: open after 50 steps (7.9 s)',
+    ]

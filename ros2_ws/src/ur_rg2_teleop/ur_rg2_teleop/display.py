@@ -25,6 +25,23 @@ class Console:
             self._stream.flush()
 
 
+def outcome_line(name: str, success: bool, message: str) -> str:
+    """Return one line with an outcome: ``NAME: done: MESSAGE`` or ``NAME: FAILED: MESSAGE``."""
+    message = ' '.join(message.split())  # one line, whatever the message holds
+    return f"{name}: {'done' if success else 'FAILED'}{': ' + message if message else ''}"
+
+
+def result_outcome(text: str) -> tuple[bool, str]:
+    """Split a result topic's line, ``success: ...`` or ``failed: ...``, into success and rest.
+
+    A line with neither prefix is a failure whose message is the whole line.
+    """
+    status, _, message = text.partition(': ')
+    if status not in ('success', 'failed'):
+        return False, text
+    return status == 'success', message
+
+
 def arm_values(names: Sequence[str], values: Sequence[float]) -> list[float] | None:
     """Return ``values`` of the six arm joints in ARM_JOINTS order, None if any is missing."""
     if len(values) != len(names):

@@ -18,11 +18,19 @@ from rclpy.qos import qos_profile_sensor_data
 from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 from sensor_msgs.msg import JointState
+from std_msgs.msg import String
 from std_srvs.srv import Trigger
 from ur_rg2_common.contract import ARM_JOINTS
 from ur_rg2_common.parameters import ParameterSpec, declare_parameters
 
-from ur_rg2_teleop.display import Console, SettleWatcher, arm_values, format_angles
+from ur_rg2_teleop.display import (
+    Console,
+    SettleWatcher,
+    arm_values,
+    format_angles,
+    outcome_line,
+    result_outcome,
+)
 from ur_rg2_teleop.keymap import (
     MAX_STEP_DEG,
     MAX_STEP_MM,
@@ -80,6 +88,8 @@ class KeysNode(Node):
             name: self.create_client(Trigger, name) for name in SERVICES}
         self.create_subscription(
             JointState, 'joint_states', self._on_joint_states, qos_profile_sensor_data)
+        # Volatile: the episodes that end while keys runs, not one latched before it started.
+        self.create_subscription(String, 'policy/result', self._on_policy_result, 10)
         # Shared by the key loop (moves) and the executor thread (joint states).
         self._lock = threading.Lock()
         self._watcher = SettleWatcher()
@@ -204,13 +214,13 @@ class KeysNode(Node):
             self._console.line(f'{name}: call failed: {error}')
             return
         response = future.result()
-        outcome = 'done' if response.success else 'FAILED'
-        # One line per result, whatever the server put in its message.
-        message = ' '.join(response.message.split())
-        self._console.line(f'{name}: {outcome}{": " + message if message else ""}')
+        self._console.line(outcome_line(name, response.success, response.message))
         if moves_arm and response.success:
             with self._lock:
                 self._watcher.moved(time.monotonic())
+
+    def _on_policy_result(self, message: String) -> None:
+        self._console.line(outcome_line('policy episode', *result_outcome(message.data)))
 
     def _on_joint_states(self, message: JointState) -> None:
         angles = arm_values(message.name, message.position)

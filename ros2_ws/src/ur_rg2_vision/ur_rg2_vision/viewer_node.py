@@ -7,8 +7,9 @@ The ball's position comes in the camera's optical frame. It is shown in ``world`
 ``base_link`` too, through the transform tree (``/tf_static``). Without a tree (a sim that
 publishes none) the world coordinates are computed from the sim's camera pose, asked from the
 sim node's ``camera_position`` and ``camera_look_at`` parameters every few seconds (they may
-change). The last ``pick_ball`` result of the motion node is shown as it comes, and whether
-the learned policy (ur_rg2_learning's ``policy`` node, ``policy/driving``) drives the arm.
+change). The last ``pick_ball`` result of the motion node is shown as it comes, whether the
+learned policy (ur_rg2_learning's ``policy`` node, ``policy/driving``) drives the arm, and its
+last episode's outcome (``policy/result``).
 """
 
 from __future__ import annotations
@@ -95,6 +96,7 @@ class ViewerNode(Node):
         self.create_subscription(TFMessage, '/tf_static', self._tree.add_message, LATCHED_QOS)
         self.create_subscription(String, 'pick_ball/result', self._on_pick_result, LATCHED_QOS)
         self.create_subscription(Bool, 'policy/driving', self._on_policy_driving, LATCHED_QOS)
+        self.create_subscription(String, 'policy/result', self._on_policy_result, LATCHED_QOS)
         self._to_world: Callable[[Sequence[float]], np.ndarray] | None = None
         self._pose_client = self.create_client(GetParameters, f'{SIM_NODE}/get_parameters')
         self._pose_question: tuple[Future, float] | None = None
@@ -153,6 +155,9 @@ class ViewerNode(Node):
 
     def _on_policy_driving(self, msg: Bool) -> None:
         self._hub.set_state('policy_driving', msg.data)
+
+    def _on_policy_result(self, msg: String) -> None:
+        self._hub.set_state('policy_result', msg.data)
 
     def _ask_camera_pose(self) -> None:
         if self._pose_question is not None:

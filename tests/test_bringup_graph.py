@@ -4,15 +4,18 @@ import os
 from pathlib import Path
 import re
 import signal
+import socket
 import subprocess
 import termios
 import time
+import urllib.request
 
+from ament_index_python.packages import get_package_share_directory
 from conftest import wait_for
 from geometry_msgs.msg import PointStamped
 import pytest
 from rclpy.node import Node
-from rclpy.parameter import Parameter
+from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import QoSProfile, qos_profile_sensor_data
 from sensor_msgs.msg import Image
@@ -27,6 +30,7 @@ NODES = {'sim': 'ur_rg2_sim', 'vision': 'ur_rg2_vision', 'motion': 'ur_rg2_motio
          'viewer': 'ur_rg2_viewer'}
 KEYS = 'ur_rg2_teleop'
 PARAMS_FILE = ROOT / 'ros2_ws/src/ur_rg2_bringup/config/graph.yaml'
+EXAMPLES = Path(get_package_share_directory('ur_rg2_bringup')) / 'config' / 'examples'
 # In the Pick policy's region and the camera's view, off where the ball starts (the sim moves
 # the ball only when ball_position changes).
 EPISODE_BALL = [0.4, -0.2, 0.03]
@@ -101,6 +105,79 @@ def test_headless_graph_takes_options_and_stops_on_sigterm(ros_graph, tmp_path):
     assert 'no terminal on standard input' in output
     # Every node stopped cleanly on the first SIGINT launch sent it; headless, on the screen.
     assert_every_node_stopped_cleanly(output)
+
+
+def free_port_pair() -> int:
+    """Return a port P such that P and P + 1 are both free on the loopback now."""
+    while True:
+        with socket.socket() as first:
+            first.bind(('127.0.0.1', 0))
+            port = first.getsockname()[1]
+            with socket.socket() as second:
+                try:
+                    second.bind(('127.0.0.1', port + 1))
+                except OSError:
+                    continue
+        return port
+
+
+def node_parameters(probe: Node, node: str, names: list[str]) -> dict:
+    """Return a running node's parameters ``names`` through its parameter services."""
+    client = AsyncParameterClient(probe, node)
+    assert client.wait_for_services(timeout_sec=30.0), node
+    future = client.get_parameters(names)
+    wait_for(future.done, 30.0, f"{node}'s parameters")
+    return {name: parameter_value_to_python(value)
+            for name, value in zip(names, future.result().values, strict=True)}
+
+
+# Each example as a user passes it (the 3D view beside the learned detector, on ports next to
+# each other), and what it sets.
+EXAMPLE_RUNS = {
+    'white_ball_learned.yaml': (['camera_rate:=5.0', 'view3d:=true'], {
+        NODES['sim']: {'ball_color': [1.0, 1.0, 1.0, 1.0], 'camera_rate': 5.0},
+        NODES['vision']: {'detector': 'learned'}}),
+    'ur3_slow_camera.yaml': (['port:=0'], {
+        NODES['sim']: {'robot_model': 'ur3', 'camera_rate': 10.0},
+        NODES['vision']: {'detector': 'color'}}),
+}
+
+
+@pytest.mark.parametrize('example', sorted(EXAMPLE_RUNS))
+def test_an_example_params_file_works_as_it_is(ros_graph, tmp_path, example):
+    """The example's parameters reach the nodes and the ball is found; the pages both serve."""
+    arguments, expected = EXAMPLE_RUNS[example]
+    view3d = 'view3d:=true' in arguments
+    port = free_port_pair()
+    if view3d:  # the viewer's port given, the 3D view's by default
+        arguments = [*arguments, f'port:={port}']
+    probe = ros_graph.node('probe')
+    positions: list[PointStamped] = []
+    probe.create_subscription(PointStamped, 'ball/position', positions.append,
+                              qos_profile_sensor_data)
+    log_path = tmp_path / 'run.log'
+    with log_path.open('w') as log:
+        run = subprocess.Popen(
+            [str(ROOT / 'scripts/run'), f'params_file:={EXAMPLES / example}', *arguments],
+            stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=ros_graph.env)
+    try:
+        wait_for(lambda: positions or run.poll() is not None, 180.0, 'a ball position')
+        assert run.poll() is None, f'the graph ended:\n{log_path.read_text()}'
+        for node, values in expected.items():
+            assert node_parameters(probe, node, list(values)) == values, node
+        if view3d:
+            pages = (f'live view of /ball/image at http://127.0.0.1:{port}/',
+                     f'3D view at http://127.0.0.1:{port + 1}/')
+            wait_for(lambda: all(page in log_path.read_text() for page in pages), 60.0,
+                     'both pages served')
+            for url in (f'http://127.0.0.1:{port}/', f'http://127.0.0.1:{port + 1}/'):
+                with urllib.request.urlopen(url, timeout=10) as page:
+                    assert page.status == 200, url
+        run.send_signal(signal.SIGTERM)
+        assert run.wait(timeout=60) == 0, log_path.read_text()
+    finally:
+        run.kill()
+    assert 'Traceback' not in log_path.read_text()
 
 
 def pick(controller: int, log_path: Path, positions: list) -> int:

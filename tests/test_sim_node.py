@@ -346,6 +346,7 @@ def read_until(process: subprocess.Popen, text: bytes, timeout: float) -> bytes:
     ('physics_rate:=-5.0', 'physics_rate must be between'),
     ('camera_position:=[1.0, 2.0]', 'camera_position needs 3 numbers'),
     ('camera_rate:=fast', "'camera_rate' to 'fast' of type 'STRING', expecting type 'DOUBLE'"),
+    ('renderer:=opengl', "renderer must be auto, egl, tiny, got 'opengl'"),
 ])
 def test_bad_start_up_parameter_exits_non_zero_with_one_line(parameter, reason):
     process = run_sim(parameter)

@@ -1,28 +1,85 @@
 """Kinect-like RGB-D camera: pinhole intrinsics, color + registered depth. Plain Python, no ROS.
 
-pybullet's CPU TinyRenderer costs per covered pixel, and a floor fills half the image: with the
-floor rasterised a 640x480 frame takes ~90 ms, without it ~15 ms. The floor is the plane z = 0,
-so its colour and depth per pixel depend only on the camera pose; they are computed once with
-numpy and composited under the rendered bodies by depth. Whatever lies below the floor plane is
-hidden exactly as a rendered floor would hide it: the arm cannot get there (floor and pedestal
-are solid, see world.py), but the floor's own visual speck sits there, and tests park bodies
-there out of sight.
+Two renderers draw the same camera (docs/design.md, "The camera"):
+
+* ``egl``: OpenGL through moderngl on an EGL context (:mod:`ur_rg2_sim.gl_renderer`), Mesa's
+  llvmpipe on a CPU or a GPU where there is one. It draws a snapshot of the shapes' poses, so
+  the drawing may run on another thread while the physics goes on.
+* ``tiny``: pybullet's TinyRenderer, the fallback where no EGL context loads. It reads the
+  world itself, so it draws on the simulation thread.
+
+The floor is the plane z = 0, never rasterised by TinyRenderer (a screen-filling plane costs it
+~75 ms): its colour and depth per pixel depend only on the camera pose, so they are computed
+once with numpy and composited under the rendered bodies by depth; the OpenGL renderer draws
+the same tiles. Whatever lies below the floor plane is hidden as a floor hides it: the arm
+cannot get there (floor and pedestal are solid, see world.py), but the floor's own visual speck
+sits there, and tests park bodies there out of sight.
 """
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+import functools
 import math
+from typing import Optional
 
 import cv2
 import numpy as np
 import pybullet
 from ur_rg2_common.camera_pose import optical_rotation
 
+from ur_rg2_sim.gl_renderer import FloorLook, GlRenderer, create_context, describe, thread_context
+from ur_rg2_sim.render_scene import SceneSnapshot, read_snapshot
 from ur_rg2_sim.world import SimWorld
 
 # A Kinect v1 sees 0.4-8 m; nearer and farther the renderer clips.
 NEAR_CLIP = 0.05
 FAR_CLIP = 8.0
+
+# The ``renderer`` parameter's values: the first picks the second where EGL loads.
+RENDERERS = ('auto', 'egl', 'tiny')
+# What gives the OpenGL renderer its EGL context on Debian and Ubuntu.
+EGL_PACKAGES = 'libegl1 libgl1-mesa-dri'
+
+
+class RendererError(ValueError):
+    """The requested renderer is unknown, or cannot run on this machine."""
+
+
+@dataclass(frozen=True)
+class RendererChoice:
+    """Which renderer draws (``egl`` or ``tiny``) and why, for the start-up log line."""
+
+    name: str
+    reason: str
+
+
+@functools.lru_cache(maxsize=1)
+def _egl_probe() -> tuple[Optional[str], Optional[str]]:
+    """Return (the EGL renderer's description, None) or (None, why no context loads)."""
+    try:
+        context = create_context()
+    except Exception as error:  # noqa: BLE001 - any failure means: no EGL here
+        return None, f'{type(error).__name__}: {error}'
+    try:
+        return describe(context), None
+    finally:
+        context.release()
+
+
+def choose_renderer(requested: str) -> RendererChoice:
+    """Resolve a ``renderer`` parameter value; raise RendererError when it cannot be had."""
+    if requested not in RENDERERS:
+        raise RendererError(f"renderer must be {', '.join(RENDERERS)}, got {requested!r}")
+    if requested == 'tiny':
+        return RendererChoice('tiny', "pybullet's TinyRenderer, as asked (renderer: tiny)")
+    found, failure = _egl_probe()
+    if found is not None:
+        return RendererChoice('egl', f'OpenGL on EGL: {found}')
+    if requested == 'egl':
+        raise RendererError(f'renderer egl: no EGL context loads ({failure}); install '
+                            f'{EGL_PACKAGES} (Debian/Ubuntu) or use renderer auto or tiny')
+    return RendererChoice('tiny', f"pybullet's TinyRenderer: no EGL context loads ({failure}); "
+                          f'for the faster OpenGL renderer install {EGL_PACKAGES}')
 
 
 @dataclass
@@ -36,7 +93,8 @@ class CameraConfig:
     look_at: Sequence[float] = (0.3, -0.1, 0.1)
     floor_colors: tuple[Sequence[int], Sequence[int]] = ((176, 176, 170), (150, 150, 146))
     floor_tile: float = 0.25  # m
-    background_color: Sequence[int] = (205, 215, 225)
+    # Where no surface is in view (beyond the far clip): TinyRenderer's clear colour, white.
+    background_color: Sequence[int] = (255, 255, 255)
     light_direction: Sequence[float] = (0.4, -0.6, 1.0)
 
 
@@ -49,15 +107,20 @@ class Frame:
 
 
 class Camera:
-    """Renders a :class:`SimWorld` from a fixed pose; depth is registered to colour."""
+    """Renders a :class:`SimWorld` from a fixed pose; depth is registered to colour.
 
-    def __init__(self, world: SimWorld, config: CameraConfig) -> None:
+    ``renderer`` is the ``renderer`` parameter's value (:data:`RENDERERS`); :attr:`renderer`
+    says which one draws. With ``egl`` a camera draws on one thread: the first that draws.
+    """
+
+    def __init__(self, world: SimWorld, config: CameraConfig, renderer: str = 'auto') -> None:
         if config.width < 1 or config.height < 1:
             raise ValueError('camera width and height must be positive')
         if not 1.0 <= config.hfov_deg <= 170.0:
             raise ValueError('camera_hfov must be between 1 and 170 degrees')
         self.world = world
         self.config = config
+        self.renderer = choose_renderer(renderer)
         w, h = config.width, config.height
         self.fx = (w / 2) / math.tan(math.radians(config.hfov_deg) / 2)
         self.fy = self.fx  # square pixels
@@ -67,16 +130,26 @@ class Camera:
         self.cy = h / 2 - 1
         self._rotation = optical_rotation(config.position, config.look_at)
         self._position = np.asarray(config.position, dtype=float)
-        vfov = math.degrees(2 * math.atan((h / 2) / self.fy))
-        self._view = pybullet.computeViewMatrix(
-            list(config.position), list(config.look_at), list(self._rotation @ [0, -1, 0]))
-        self._projection = pybullet.computeProjectionMatrixFOV(vfov, w / h, NEAR_CLIP, FAR_CLIP)
-        self._floor_rgb, self._floor_depth = self._render_floor()
+        self._floor_look = floor_look(config)
+        if self.renderer.name == 'egl':
+            self._gl: Optional[GlRenderer] = None
+        else:
+            vfov = math.degrees(2 * math.atan((h / 2) / self.fy))
+            self._view = pybullet.computeViewMatrix(
+                list(config.position), list(config.look_at), list(self._rotation @ [0, -1, 0]))
+            self._projection = pybullet.computeProjectionMatrixFOV(vfov, w / h, NEAR_CLIP,
+                                                                   FAR_CLIP)
+            self._floor_rgb, self._floor_depth = self._render_floor()
 
     @property
     def k(self) -> np.ndarray:
         """Return the 3x3 intrinsic matrix."""
         return np.array([[self.fx, 0, self.cx], [0, self.fy, self.cy], [0, 0, 1]])
+
+    @property
+    def draws_off_thread(self) -> bool:
+        """Whether :meth:`draw` may run on another thread than the world's (OpenGL)."""
+        return self.renderer.name == 'egl'
 
     def world_to_optical(self, point: Sequence[float]) -> np.ndarray:
         """Return a world point in the optical frame (x right, y down, z forward)."""
@@ -89,6 +162,33 @@ class Camera:
 
     def render(self) -> Frame:
         """Render the world now; depth is metres along the optical axis, +inf: no return."""
+        if self.renderer.name == 'egl':
+            return self.draw(self.snapshot())
+        return self._render_tiny()
+
+    def snapshot(self) -> SceneSnapshot:
+        """Return what the OpenGL renderer draws, as the world is now (the world's thread)."""
+        return read_snapshot(self.world.client)
+
+    def draw(self, snapshot: SceneSnapshot) -> Frame:
+        """Draw a snapshot with OpenGL, on the thread that draws for this camera."""
+        if self._gl is None:
+            view = np.eye(4)
+            view[:3, :3] = self._rotation.T
+            view[:3, 3] = -self._rotation.T @ self._position
+            self._gl = GlRenderer(thread_context(), self.config.width, self.config.height,
+                                  self.k, view, self.config.light_direction,
+                                  (NEAR_CLIP, FAR_CLIP), self._floor_look)
+        rgb, depth = self._gl.render(snapshot)
+        return Frame(rgb=rgb, depth=depth)
+
+    def close(self) -> None:
+        """Free the OpenGL objects, on the thread that drew (the camera stays usable)."""
+        if self.renderer.name == 'egl' and self._gl is not None:
+            self._gl.release()
+            self._gl = None
+
+    def _render_tiny(self) -> Frame:
         cfg = self.config
         _, _, rgba, depth_buffer, _ = pybullet.getCameraImage(
             cfg.width, cfg.height, self._view, self._projection, shadow=0,
@@ -120,13 +220,18 @@ class Camera:
         points = self._position + world_rays * np.where(hits, distance, 0)[..., None]
         tiles = (np.floor(points[..., 0] / cfg.floor_tile)
                  + np.floor(points[..., 1] / cfg.floor_tile)).astype(int) % 2
-        palette = np.array(cfg.floor_colors, dtype=np.float32)
-        # Lambert shading of the horizontal floor with the renderer's light, so that floor and
-        # bodies brighten and darken together when the light changes.
-        light = np.asarray(cfg.light_direction, dtype=float)
-        shade = 0.6 + 0.4 * max(light[2] / (np.linalg.norm(light) or 1.0), 0.0)
-        floor = palette[tiles] * shade
-        background = np.broadcast_to(np.asarray(cfg.background_color, dtype=np.float32),
-                                     floor.shape)
-        rgb = np.where(hits[..., None], floor, background)
-        return np.clip(rgb, 0, 255).astype(np.uint8), depth
+        look = self._floor_look
+        rgb = np.where(hits[..., None], look.tile_colors[tiles], look.background)
+        return rgb.astype(np.uint8), depth
+
+
+def floor_look(config: CameraConfig) -> FloorLook:
+    """Return the floor's two tile colours as lit, and the background, in 8-bit RGB."""
+    # Lambert shading of the horizontal floor with the renderer's light, so that floor and
+    # bodies brighten and darken together when the light changes.
+    light = np.asarray(config.light_direction, dtype=float)
+    shade = 0.6 + 0.4 * max(light[2] / (np.linalg.norm(light) or 1.0), 0.0)
+    tiles = np.asarray(config.floor_colors, dtype=np.float32) * np.float32(shade)
+    return FloorLook(tile_colors=np.clip(tiles, 0, 255).astype(np.uint8),
+                     tile_size=float(config.floor_tile),
+                     background=np.clip(config.background_color, 0, 255).astype(np.uint8))

@@ -93,8 +93,11 @@ class ContactsMixin:
         the sine of the angle between that motion and the obstacle's surface. A joint within
         ``_HOLDING_ERROR`` of its target counts as holding, not moving.
         """
+        points = self._p.getContactPoints(self.robot)
+        if not points:  # most steps: the check runs before every one
+            return []
         pairs: dict[tuple[int, int, int], list] = {}
-        for c in self._p.getContactPoints(self.robot):
+        for c in points:
             if c[9] > 0.0 and (c[2] == self.robot or c[2] in self._obstacle_name):
                 pairs.setdefault((c[2], c[3], c[4]), []).append(c)
         if not pairs:

@@ -3,7 +3,7 @@
 The transforms come from :mod:`ur_rg2_sim.frames`; this module only fills messages. /tf and
 ball/true_pose run at joint_state_rate on the simulation thread (thousands a second at
 real-time factor 0), so they are published as bytes serialized once and rewritten with the
-new numbers (:mod:`ur_rg2_sim.serialized`).
+new numbers, and only while someone subscribes (:mod:`ur_rg2_sim.serialized`).
 """
 
 from collections.abc import Sequence
@@ -16,7 +16,8 @@ from tf2_msgs.msg import TFMessage
 from ur_rg2_common.contract import LATCHED_QOS, TF_QOS, WORLD_FRAME
 
 from ur_rg2_sim.frames import FrameTree, camera_transforms
-from ur_rg2_sim.serialized import SerializedMessage
+from ur_rg2_sim.serialized import SerializedPublisher
+from ur_rg2_sim.simulation import NS
 
 
 class FramePublisher:
@@ -26,20 +27,21 @@ class FramePublisher:
                  joint_names: Sequence[str]) -> None:
         self._tree = tree
         self._prefix = prefix
-        self._tf_pub = node.create_publisher(TFMessage, '/tf', TF_QOS)
         self._static_pub = node.create_publisher(TFMessage, '/tf_static', LATCHED_QOS)
-        self._true_pose_pub = node.create_publisher(PoseStamped, 'ball/true_pose', 10)
         description_pub = node.create_publisher(String, 'robot_description', LATCHED_QOS)
         description_pub.publish(String(data=description))
         # joint_states order -> the tree's moving-joint order.
         self._order = [list(joint_names).index(name) for name in tree.moving_joint_names]
         frames = [(self._frame(parent), self._frame(child))
                   for parent, child, *_ in tree.transforms([0.0] * len(self._order))]
-        self._tf = SerializedMessage(lambda doubles, words: TFMessage(transforms=[
-            _transform(parent, child, doubles[7 * i:7 * i + 3], doubles[7 * i + 3:7 * i + 7],
-                       Time(sec=int(words[2 * i]), nanosec=int(words[2 * i + 1])))
-            for i, (parent, child) in enumerate(frames)]), 7 * len(frames), 2 * len(frames))
-        self._pose = SerializedMessage(
+        self._tf = SerializedPublisher(
+            node, TFMessage, '/tf', TF_QOS, lambda doubles, words: TFMessage(transforms=[
+                _transform(parent, child, doubles[7 * i:7 * i + 3],
+                           doubles[7 * i + 3:7 * i + 7],
+                           Time(sec=int(words[2 * i]), nanosec=int(words[2 * i + 1])))
+                for i, (parent, child) in enumerate(frames)]), 7 * len(frames), 2 * len(frames))
+        self._pose = SerializedPublisher(
+            node, PoseStamped, 'ball/true_pose', 10,
             lambda doubles, words: _pose(self._frame(WORLD_FRAME), doubles, words), 7, 2)
 
     def _frame(self, name: str) -> str:
@@ -54,14 +56,20 @@ class FramePublisher:
             for parent, child, translation, rotation in transforms])
         self._static_pub.publish(msg)
 
-    def publish(self, stamp: Time, positions: Sequence[float],
+    @property
+    def subscribed(self) -> bool:
+        """Whether anyone subscribes to /tf or ball/true_pose (else :meth:`publish` is idle)."""
+        return bool(self._tf.subscribers or self._pose.subscribers)
+
+    def publish(self, stamp_ns: int, positions: Sequence[float],
                 ball_pose: tuple[Sequence[float], Sequence[float]]) -> None:
         """Publish /tf for joint ``positions`` (joint_states order) and the ball's pose."""
-        moving = self._tree.transforms([positions[i] for i in self._order])
-        values = [v for _, _, translation, rotation in moving for v in (*translation, *rotation)]
-        stamp_words = (stamp.sec, stamp.nanosec)
-        self._tf_pub.publish(self._tf.fill(values, stamp_words * len(moving)))
-        self._true_pose_pub.publish(self._pose.fill((*ball_pose[0], *ball_pose[1]), stamp_words))
+        stamp_words = divmod(stamp_ns, NS)
+        if self._tf.subscribers:
+            moving = self._tree.transforms([positions[i] for i in self._order])
+            self._tf.publish([v for _, _, translation, rotation in moving
+                              for v in (*translation, *rotation)], stamp_words * len(moving))
+        self._pose.publish((*ball_pose[0], *ball_pose[1]), stamp_words)
 
 
 def _pose(frame: str, doubles, words) -> PoseStamped:

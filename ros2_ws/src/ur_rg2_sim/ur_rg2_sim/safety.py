@@ -63,11 +63,14 @@ class ProtectiveStop:
     def step(self, world: SimWorld, now_ns: int) -> Optional[Contact]:
         """Check the contacts of the last physics step; stop the arm if it is driven in."""
         contacts = world.obstacle_contacts()
+        if not contacts:  # most steps: nothing to judge, and not stuck on anything
+            self._stuck_since_ns = None
+            return None
         driven = [c for c in contacts
                   if c.approach > APPROACH_TOLERANCE and c.incidence > MIN_INCIDENCE]
         if driven:
             stop = max(driven, key=lambda c: c.approach)
-        elif self._stuck(world, contacts, now_ns):
+        elif self._stuck(world, now_ns):
             # Sent along or away from what it touches, but held there: by friction, or by one
             # joint's motor pressing it on while the others pull it away.
             stop = max(contacts, key=lambda c: c.force)
@@ -82,9 +85,9 @@ class ProtectiveStop:
         self.on_stop(stop, held, last is None or now_ns - last > REWARN_AFTER * NS)
         return stop
 
-    def _stuck(self, world: SimWorld, contacts: list[Contact], now_ns: int) -> bool:
+    def _stuck(self, world: SimWorld, now_ns: int) -> bool:
         """Return whether the arm, touching an obstacle, has not moved on its way for a while."""
-        if not contacts or not world.arm_on_its_way() or max(
+        if not world.arm_on_its_way() or max(
                 abs(v) for v in world.joint_states().velocities[:len(ARM_JOINTS)]) > STUCK_SPEED:
             self._stuck_since_ns = None
             return False

@@ -11,6 +11,9 @@ bytes at offsets found once, by serializing it with distinct marker values.
 from collections.abc import Callable, Iterator, Sequence
 
 import numpy as np
+from rclpy.event_handler import PublisherEventCallbacks
+from rclpy.node import Node
+from rclpy.qos import QoSProfile
 from rclpy.serialization import serialize_message
 
 # The encapsulation header of little-endian plain CDR (the payload follows it).
@@ -53,6 +56,30 @@ class SerializedMessage:
         self._doubles[self._double_index] = doubles
         self._words[self._word_index] = words
         return bytes(self._buffer)
+
+
+class SerializedPublisher:
+    """A publisher of a :class:`SerializedMessage` stream, silent while no one subscribes.
+
+    Whether a subscription is matched comes from the publisher's matched events, which the
+    node's executor delivers; :meth:`publish` may be called from another thread.
+    """
+
+    def __init__(self, node: Node, msg_type: type, topic: str, qos: QoSProfile | int,
+                 build: Callable[[np.ndarray, np.ndarray], object], n_doubles: int,
+                 n_words: int) -> None:
+        self.subscribers = 0  # matched subscriptions, as the last matched event said
+        self._message = SerializedMessage(build, n_doubles, n_words)
+        self._publisher = node.create_publisher(
+            msg_type, topic, qos, event_callbacks=PublisherEventCallbacks(matched=self._matched))
+
+    def _matched(self, status) -> None:
+        self.subscribers = status.current_count
+
+    def publish(self, doubles: Sequence[float], words: Sequence[int]) -> None:
+        """Publish the message holding ``doubles`` and ``words`` if anyone subscribes."""
+        if self.subscribers:
+            self._publisher.publish(self._message.fill(doubles, words))
 
 
 def _find(template: bytes, markers: np.ndarray, size: int) -> np.ndarray:

@@ -7,7 +7,7 @@ from ur_rg2_common.contract import ARM_JOINTS
 from ur_rg2_common.parameters import ParameterSpec
 from ur_rg2_common.scene_objects import SceneObject
 
-from ur_rg2_sim.camera import CameraConfig
+from ur_rg2_sim.camera import RENDERERS, CameraConfig
 from ur_rg2_sim.commands import CommandError, finite_vector, in_range
 from ur_rg2_sim.robot_model import ROBOT_MODELS
 from ur_rg2_sim.simulation import Schedule
@@ -24,6 +24,8 @@ PARAMETERS = (
     ParameterSpec('joint_state_rate', 100.0, 'joint_states rate, Hz of simulation time'),
     ParameterSpec('camera_rate', 30.0, 'Camera frame rate, Hz of simulation time; 0 turns the '
                   'camera off'),
+    ParameterSpec('renderer', 'auto', f"Camera renderer: {', '.join(RENDERERS)} (auto: OpenGL on "
+                  "EGL where it loads, else pybullet's TinyRenderer)", read_only=True),
     ParameterSpec('camera_width', 640, 'Image width, pixels'),
     ParameterSpec('camera_height', 480, 'Image height, pixels'),
     ParameterSpec('camera_hfov', 57.0, 'Horizontal field of view, degrees (Kinect v1: 57)'),
@@ -64,6 +66,7 @@ class SimSettings:
     physics_rate: float
     joint_state_rate: float
     camera_rate: float
+    renderer: str
     camera_width: int
     camera_height: int
     camera_hfov: float
@@ -94,6 +97,9 @@ class SimSettings:
         light = finite_vector('light_direction', values['light_direction'], 3)
         if not any(light):
             raise CommandError('light_direction must not be zero')
+        if values['renderer'] not in RENDERERS:
+            raise CommandError(f"renderer must be {', '.join(RENDERERS)}, "
+                               f"got {values['renderer']!r}")
         try:
             objects = tuple(SceneObject.parse(values['scene_objects']))
         except ValueError as error:
@@ -106,6 +112,7 @@ class SimSettings:
             joint_state_rate=in_range('joint_state_rate', values['joint_state_rate'], 0.1,
                                       physics_rate),
             camera_rate=in_range('camera_rate', values['camera_rate'], 0.0, physics_rate),
+            renderer=values['renderer'],
             camera_width=int(in_range('camera_width', values['camera_width'], 1, 4096)),
             camera_height=int(in_range('camera_height', values['camera_height'], 1, 4096)),
             camera_hfov=in_range('camera_hfov', values['camera_hfov'], 1.0, 170.0),

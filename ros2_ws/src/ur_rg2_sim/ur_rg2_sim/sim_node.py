@@ -5,6 +5,7 @@ import os
 import sys
 from typing import Optional
 
+from builtin_interfaces.msg import Time
 from rcl_interfaces.msg import SetParametersResult
 import rclpy
 from rclpy.callback_groups import ReentrantCallbackGroup
@@ -18,7 +19,7 @@ from ur_rg2_common.contract import ARM_JOINTS, IMAGE_QOS
 from ur_rg2_common.parameters import declare_parameters
 from ur_rg2_common.spin import run_node
 
-from ur_rg2_sim.camera import Camera, Frame
+from ur_rg2_sim.camera import Camera, Frame, RendererError
 from ur_rg2_sim.commands import CommandError, joint_targets
 from ur_rg2_sim.controllers import Controllers
 from ur_rg2_sim.frame_publisher import FramePublisher
@@ -27,10 +28,10 @@ from ur_rg2_sim.outputs import camera_info, degrees_list, gripper_outcome, joint
 from ur_rg2_sim.planning import CollisionModel
 from ur_rg2_sim.robot_model import RobotModelError
 from ur_rg2_sim.safety import Homing, ProtectiveStop, describe
-from ur_rg2_sim.serialized import SerializedMessage
+from ur_rg2_sim.serialized import SerializedPublisher
 from ur_rg2_sim.settings import PARAMETERS, SimSettings
-from ur_rg2_sim.simulation import SimulationLoop, SimulationUnavailableError, answer
-from ur_rg2_sim.world import Contact, JointStateSample, SimWorld, WorldConfig
+from ur_rg2_sim.simulation import NS, SimulationLoop, SimulationUnavailableError, answer
+from ur_rg2_sim.world import Contact, SimWorld, WorldConfig
 
 # Gripper and reset services give up after this much simulation time (the contract's 5 s).
 SERVICE_TIMEOUT = 5.0
@@ -53,10 +54,12 @@ class SimNode(Node):
             ball_position=s.ball_position, ball_radius=s.ball_radius, ball_color=s.ball_color,
             home_position=s.home_position, gui=gui))
 
-        self._clock_pub = self.create_publisher(Clock, '/clock', 10)
-        self._clock_msg = Clock()
-        self._joint_pub = self.create_publisher(JointState, 'joint_states', 10)
-        self._joint_msg = SerializedMessage(
+        # At real-time factor 0 these run thousands of times a second: serialized bytes.
+        self._clock_stream = SerializedPublisher(
+            self, Clock, '/clock', 10,
+            lambda _, words: Clock(clock=Time(sec=int(words[0]), nanosec=int(words[1]))), 0, 2)
+        self._joint_stream = SerializedPublisher(
+            self, JointState, 'joint_states', 10,
             lambda doubles, words: joint_state(self._world.joint_names, doubles, words),
             3 * len(self._world.joint_names), 2)
         self._color_pub = self.create_publisher(Image, 'camera/color/image_raw', IMAGE_QOS)
@@ -83,7 +86,10 @@ class SimNode(Node):
             self.create_service(Trigger, name, callback, callback_group=self.blocking_group)
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
-        self._sim = SimulationLoop(self._world, self, s.schedule(), self._make_camera(s))
+        camera = self._make_camera(s)
+        if camera is not None:
+            self.get_logger().info(f'camera rendered by {camera.renderer.reason}')
+        self._sim = SimulationLoop(self._world, self, s.schedule(), camera)
         self._controllers = Controllers(self, self._sim)
         # Where reset plans its way round: a pybullet client of its own, made at start-up
         # rather than in the middle of a run, at the first blocked reset.
@@ -126,16 +132,25 @@ class SimNode(Node):
 
     def clock(self, stamp_ns: int) -> None:
         """Publish ``/clock``."""
-        self._clock_msg.clock = stamp(stamp_ns)
-        self._clock_pub.publish(self._clock_msg)
+        self._clock_stream.publish((), divmod(stamp_ns, NS))
 
-    def joint_states(self, stamp_ns: int, sample: JointStateSample) -> None:
-        """Publish ``joint_states``."""
-        # At real-time factor 0 this runs thousands of times a second: serialized bytes.
-        time = stamp(stamp_ns)
-        self._joint_pub.publish(self._joint_msg.fill(
-            (*sample.positions, *sample.velocities, *sample.efforts), (time.sec, time.nanosec)))
-        self._frames.publish(time, sample.positions, self._world.body_pose(self._world.ball))
+    def joint_states(self, stamp_ns: int, world: SimWorld) -> None:
+        """Publish ``joint_states``, /tf and ``ball/true_pose`` of ``world`` now."""
+        if not (self._joint_stream.subscribers or self._frames.subscribed):
+            return  # nothing to sample for
+        sample = world.joint_states()
+        self._joint_stream.publish((*sample.positions, *sample.velocities, *sample.efforts),
+                             divmod(stamp_ns, NS))
+        if self._frames.subscribed:
+            self._frames.publish(stamp_ns, sample.positions, world.body_pose(world.ball))
+
+    def frame_dropped(self, stamp_ns: int, dropped: int) -> None:
+        """Warn once that rendering cannot keep up; the summary at exit gives the count."""
+        if dropped == 1:
+            self.get_logger().warning(
+                f'camera frame at {stamp_ns / 1e9:.3f} s dropped: the last frame was still being '
+                'drawn. The camera drops frames while rendering cannot keep up; physics and '
+                'joint_states keep their rates (the count is in the summary at exit)')
 
     def frame(self, stamp_ns: int, camera: Camera, frame: Frame) -> None:
         """Publish colour, depth and their camera_info with one header."""
@@ -266,13 +281,14 @@ class SimNode(Node):
     def _make_camera(self, settings: SimSettings) -> Optional[Camera]:
         if settings.camera_rate <= 0:
             return None
-        return Camera(self._world, settings.camera_config())
+        return Camera(self._world, settings.camera_config(), settings.renderer)
 
 
 def main(args: Optional[list[str]] = None) -> int:
     """Run the simulator node until Ctrl-C or SIGTERM."""
     return run_node(SimNode, args, 'ur_rg2_sim',
-                    startup_errors=(CommandError, RobotModelError, ParameterException),
+                    startup_errors=(CommandError, RobotModelError, RendererError,
+                                    ParameterException),
                     on_startup_error=_invalid_parameter, failure=_simulation_failure)
 
 

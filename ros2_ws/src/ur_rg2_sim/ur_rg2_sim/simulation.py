@@ -15,7 +15,8 @@ import time
 from typing import Optional, Protocol
 
 from ur_rg2_sim.camera import Camera, Frame
-from ur_rg2_sim.world import JointStateSample, SimWorld
+from ur_rg2_sim.render_thread import RenderThread
+from ur_rg2_sim.world import SimWorld
 
 NS = 1_000_000_000
 # The simulation may fall this far behind the wall clock (a slow render, a loaded machine)
@@ -45,11 +46,14 @@ class Outputs(Protocol):
     def clock(self, stamp_ns: int) -> None:
         """Publish the simulation time."""
 
-    def joint_states(self, stamp_ns: int, sample: JointStateSample) -> None:
-        """Publish one joint state sample."""
+    def joint_states(self, stamp_ns: int, world: SimWorld) -> None:
+        """Publish the joint states of ``world`` now (sampled only if anyone listens)."""
 
     def frame(self, stamp_ns: int, camera: Camera, frame: Frame) -> None:
-        """Publish one RGB-D frame of ``camera``."""
+        """Publish one RGB-D frame of ``camera`` (on the camera's thread with OpenGL)."""
+
+    def frame_dropped(self, stamp_ns: int, dropped: int) -> None:
+        """Say that the frame due at ``stamp_ns`` was dropped: the last was still drawn."""
 
 
 @dataclass
@@ -93,11 +97,16 @@ class SimulationLoop:
         self._thread = threading.Thread(target=self._run, name='simulation', daemon=True)
         self._next_clock = self._next_joint_states = self._next_frame = 0
         self._pace_origin: Optional[tuple[float, int]] = None
+        self._render_thread = RenderThread(outputs.frame)
+        self.frames_dropped = 0
+        self._frames_on_loop = 0  # drawn on this thread (TinyRenderer)
 
     # -- any thread ---------------------------------------------------------------------------
 
     def start(self) -> None:
-        """Start the simulation thread."""
+        """Start the simulation thread (once the camera has drawn its first frame)."""
+        if self.camera is not None and self.camera.draws_off_thread:
+            self._render_thread.warm_up(self.camera, self.camera.snapshot())
         self._thread.start()
 
     def stop(self, timeout: float = 10.0) -> bool:
@@ -110,6 +119,7 @@ class SimulationLoop:
         self._wake.set()
         if self._thread.is_alive() and self._thread is not threading.current_thread():
             self._thread.join(timeout)
+        self._render_thread.stop(timeout)
         return not self._thread.is_alive()
 
     def summary(self) -> str:
@@ -119,8 +129,11 @@ class SimulationLoop:
         steps = self.sim_time_ns // self.step_ns
         if wall <= 0:
             return 'the simulation did not run'
+        frames = self._render_thread.drawn + self._frames_on_loop
+        camera = (f'; camera: {frames} frames drawn, {self.frames_dropped} dropped'
+                  if frames or self.frames_dropped else '')
         return (f'simulated {sim:.1f} s in {wall:.1f} s ({sim / wall:.2f}x real time, '
-                f'{steps / wall:,.0f} physics steps/s)')
+                f'{steps / wall:,.0f} physics steps/s){camera}')
 
     def call(self, function: Callable[[SimWorld], object]) -> Future:
         """Run ``function(world)`` on the simulation thread before the next step."""
@@ -164,11 +177,12 @@ class SimulationLoop:
     def _run(self) -> None:
         self.started_at = time.monotonic()
         try:
+            world, hooks = self.world, self.step_hooks  # looked up once: thousands of steps/s
             while not self._stop.is_set():
                 self._run_calls()
-                for hook in self.step_hooks:
-                    hook(self.world, self.sim_time_ns)
-                self.world.step()
+                for hook in hooks:
+                    hook(world, self.sim_time_ns)
+                world.step()
                 self.sim_time_ns += self.step_ns
                 self._check_waiters()
                 self._publish_due()
@@ -212,12 +226,27 @@ class SimulationLoop:
             self.outputs.clock(now)
             self._next_clock = _next_due(self._next_clock, now, CLOCK_RATE)
         if schedule.joint_state_rate > 0 and now >= self._next_joint_states:
-            self.outputs.joint_states(now, self.world.joint_states())
+            self.outputs.joint_states(now, self.world)
             self._next_joint_states = _next_due(self._next_joint_states, now,
                                                 schedule.joint_state_rate)
         if self.camera is not None and schedule.camera_rate > 0 and now >= self._next_frame:
-            self.outputs.frame(now, self.camera, self.camera.render())
+            self._capture(now, self.camera)
             self._next_frame = _next_due(self._next_frame, now, schedule.camera_rate)
+
+    def _capture(self, now: int, camera: Camera) -> None:
+        """Draw a frame: on the camera thread with OpenGL, else (TinyRenderer) here."""
+        if not camera.draws_off_thread:
+            self.outputs.frame(now, camera, camera.render())
+            self._frames_on_loop += 1
+            return
+        renderer = self._render_thread
+        if renderer.error is not None:
+            raise RuntimeError(f'the camera failed: {renderer.error!r}') from renderer.error
+        if self.schedule.real_time_factor <= 0:
+            renderer.wait_idle()  # unpaced, there is no wall clock to keep up with
+        if not renderer.submit(now, camera, camera.snapshot()):
+            self.frames_dropped += 1
+            self.outputs.frame_dropped(now, self.frames_dropped)
 
     def _pace(self) -> None:
         rtf = self.schedule.real_time_factor

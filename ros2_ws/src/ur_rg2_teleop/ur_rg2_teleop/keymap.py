@@ -5,7 +5,7 @@ import enum
 import math
 from typing import Union
 
-from ur_rg2_common.contract import ARM_JOINTS
+from ur_rg2_common.contract import ARM_JOINTS, EPISODE_FAILURE, EPISODE_START, EPISODE_SUCCESS
 
 MIN_STEP_DEG = 0.5
 MAX_STEP_DEG = 45.0
@@ -36,6 +36,13 @@ class CallService:
     service: str
 
 
+@dataclass(frozen=True)
+class Mark:
+    """Publish the episode marker ``marker`` (EPISODE_START, _SUCCESS, _FAILURE) on ``episode``."""
+
+    marker: str
+
+
 class Command(enum.Enum):
     """Actions handled by the key loop itself."""
 
@@ -53,7 +60,7 @@ class Mode(enum.Enum):
     TOOL = 'tool'  # the TCP along and about base_link's axes (tool_jog)
 
 
-Action = Union[Jog, CallService, Command]
+Action = Union[Jog, CallService, Command, Mark]
 
 # One pair per joint, in ARM_JOINTS order: first key +, second key -.
 _JOG_KEYS = ('qw', 'as', 'zx', 'er', 'df', 'cv')
@@ -69,6 +76,9 @@ BINDINGS: dict[str, Action] = {
     'l': CallService('reset'),
     ' ': CallService('vision/save_frame'),
     'g': CallService('pick_ball'),
+    'b': Mark(EPISODE_START),
+    'n': Mark(EPISODE_SUCCESS),
+    'j': Mark(EPISODE_FAILURE),
     'm': Command.MODE,
     '+': Command.STEP_UP,
     '-': Command.STEP_DOWN,
@@ -172,6 +182,7 @@ def help_text(step_deg: float, mode: Mode = Mode.JOINT, step_mm: float = 10.0) -
         ('l', 'reset the arm to its home pose'),
         ('space', 'save a camera frame'),
         ('g', 'pick the ball the camera sees'),
+        ('b / n / j', 'begin an episode / end it: a success / a failure'),
         ('m', f"switch to {'joint' if mode is Mode.TOOL else 'tool'} mode"),
         ('+ / -', step),
         ('h', 'this help'),
@@ -180,3 +191,10 @@ def help_text(step_deg: float, mode: Mode = Mode.JOINT, step_mm: float = 10.0) -
     lines = [f'UR + RG2 keyboard teleop, {mode.value} mode (upper case acts like lower case)']
     lines += [f'  {keys:<10} {what}' for keys, what in rows]
     return '\n'.join(lines)
+
+
+def mark_line(marker: str) -> str:
+    """Return the line shown when a key marks an episode."""
+    if marker == EPISODE_START:
+        return 'episode started (n: end it as a success, j: as a failure)'
+    return f'episode ended: {marker}'

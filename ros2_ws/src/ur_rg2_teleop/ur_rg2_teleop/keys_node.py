@@ -21,6 +21,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 from ur_rg2_common.contract import ARM_JOINTS
+from ur_rg2_common.episode import EpisodeMarkers
 from ur_rg2_common.parameters import ParameterSpec, declare_parameters
 
 from ur_rg2_teleop.display import (
@@ -41,12 +42,14 @@ from ur_rg2_teleop.keymap import (
     CallService,
     Command,
     Jog,
+    Mark,
     Mode,
     action_for,
     describe_key,
     describe_step,
     help_text,
     larger_step,
+    mark_line,
     mode_line,
     smaller_step,
     tool_step,
@@ -84,6 +87,7 @@ class KeysNode(Node):
         self._jog_publisher = self.create_publisher(JointState, 'joint_jog', _JOG_QUEUE_DEPTH)
         self._tool_jog_publisher = self.create_publisher(
             TransformStamped, 'tool_jog', _JOG_QUEUE_DEPTH)
+        self._episodes = EpisodeMarkers(self)  # b, n, j: a person's episodes
         self._trigger_clients: dict[str, Client] = {
             name: self.create_client(Trigger, name) for name in SERVICES}
         self.create_subscription(
@@ -124,6 +128,9 @@ class KeysNode(Node):
             self._jog(action)
         elif isinstance(action, CallService):
             self._call(action.service)
+        elif isinstance(action, Mark):
+            self._episodes.mark(action.marker)
+            self._console.line(mark_line(action.marker))
         elif action in (Command.STEP_UP, Command.STEP_DOWN):
             change = larger_step if action is Command.STEP_UP else smaller_step
             if self._mode is Mode.TOOL:

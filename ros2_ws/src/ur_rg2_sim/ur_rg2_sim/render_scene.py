@@ -1,0 +1,173 @@
+"""What the camera draws, read from pybullet: each visual shape's geometry, pose and colour.
+
+A :class:`SceneSnapshot` is plain data (numpy arrays and tuples), so it can be handed to a
+renderer on another thread or in another process while the physics goes on. The geometry of
+each shape is built once per :data:`GeometryKey` by :func:`shape_mesh` (no pybullet needed).
+"""
+
+from dataclasses import dataclass
+from functools import lru_cache
+import math
+from pathlib import Path
+
+import numpy as np
+import pybullet
+
+# (pybullet geometry type, dimensions, mesh file): enough to build a shape's triangles.
+GeometryKey = tuple[int, tuple[float, ...], str]
+
+_CYLINDER_SLICES = 48
+
+
+@dataclass(frozen=True)
+class SceneSnapshot:
+    """The visual shapes of a world at one instant.
+
+    ``keys[i]`` is shape i's geometry, ``poses[i]`` its 4x4 world transform (float32) and
+    ``colors[i]`` its RGBA (0-1).
+    """
+
+    keys: tuple[GeometryKey, ...]
+    poses: np.ndarray
+    colors: np.ndarray
+
+
+def read_snapshot(client: int) -> SceneSnapshot:
+    """Return the visual shapes of every body of a pybullet client as they are now.
+
+    Shapes and colours are read afresh each time (some 20 microseconds for the sim's world),
+    so a body added, removed or repainted shows in the next frame.
+    """
+    keys, poses, colors = [], [], []
+    for index in range(pybullet.getNumBodies(physicsClientId=client)):
+        body = pybullet.getBodyUniqueId(index, physicsClientId=client)
+        shapes = pybullet.getVisualShapeData(body, physicsClientId=client)
+        if not shapes:
+            continue
+        frames = {-1: _matrix(*pybullet.getBasePositionAndOrientation(
+            body, physicsClientId=client))}
+        links = pybullet.getNumJoints(body, physicsClientId=client)
+        if links:
+            states = pybullet.getLinkStates(body, list(range(links)), physicsClientId=client)
+            frames.update((link, _matrix(state[4], state[5]))  # the URDF link frame
+                          for link, state in enumerate(states))
+        for _, link, kind, dimensions, filename, position, orientation, rgba, *_ in shapes:
+            if kind == pybullet.GEOM_PLANE:
+                continue  # the floor: the camera draws it itself
+            keys.append((kind, tuple(round(d, 9) for d in dimensions),
+                         filename.decode() if isinstance(filename, bytes) else filename))
+            poses.append(frames[link] @ _matrix(position, orientation))
+            colors.append(rgba)
+    return SceneSnapshot(tuple(keys), np.asarray(poses, dtype=np.float32).reshape(-1, 4, 4),
+                         np.asarray(colors, dtype=np.float32).reshape(-1, 4))
+
+
+def _matrix(position, orientation) -> np.ndarray:
+    matrix = np.eye(4)
+    matrix[:3, :3] = np.reshape(pybullet.getMatrixFromQuaternion(orientation), (3, 3))
+    matrix[:3, 3] = position
+    return matrix
+
+
+@lru_cache(maxsize=256)
+def shape_mesh(key: GeometryKey) -> tuple[np.ndarray, np.ndarray]:
+    """Return a shape's triangles: positions and normals, (3 * faces, 3) float32 each."""
+    kind, dimensions, filename = key
+    if kind == pybullet.GEOM_SPHERE:
+        return _sphere(dimensions[0])
+    if kind == pybullet.GEOM_BOX:
+        return _box(np.asarray(dimensions[:3]) / 2)
+    if kind in (pybullet.GEOM_CYLINDER, pybullet.GEOM_CAPSULE):
+        return _cylinder(dimensions[1], dimensions[0])
+    if kind == pybullet.GEOM_MESH:
+        return _obj_mesh(filename, tuple(dimensions[:3]))
+    raise ValueError(f'cannot draw pybullet geometry type {kind}')
+
+
+def _sphere(radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """Return the sphere TinyRenderer draws: the hull of Bullet's 42 unit-sphere directions.
+
+    That is an icosahedron (poles on z, its lower ring at -36 degrees) with each edge's
+    midpoint pushed out to the sphere: 80 smooth-shaded triangles.
+    """
+    ring = np.arctan(0.5)
+    top, bottom = np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.0, -1.0])
+    upper = [np.array([math.cos(a) * math.cos(ring), math.sin(a) * math.cos(ring),
+                       math.sin(ring)]) for a in np.radians(np.arange(0, 360, 72))]
+    lower = [np.array([math.cos(a) * math.cos(ring), math.sin(a) * math.cos(ring),
+                       -math.sin(ring)]) for a in np.radians(np.arange(-36, 324, 72))]
+    faces = []
+    for i in range(5):
+        j = (i + 1) % 5
+        faces += [(top, upper[i], upper[j]), (bottom, lower[j], lower[i]),
+                  (upper[i], lower[i], lower[j]), (upper[i], lower[j], upper[j])]
+    corners = []
+    for a, b, c in faces:
+        ab, bc, ca = (v / np.linalg.norm(v) for v in (a + b, b + c, c + a))
+        corners += [a, ab, ca, ab, b, bc, ca, bc, c, ab, bc, ca]
+    normals = np.asarray(corners)
+    return (normals * radius).astype(np.float32), normals.astype(np.float32)
+
+
+def _box(half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    positions, normals = [], []
+    for axis in range(3):
+        for sign in (-1.0, 1.0):
+            normal = np.zeros(3)
+            normal[axis] = sign
+            u, v = np.eye(3)[(axis + 1) % 3], np.eye(3)[(axis + 2) % 3]
+            corners = [normal + su * u + sv * v for su, sv in ((-1, -1), (1, -1), (1, 1),
+                                                                (-1, 1))]
+            for index in (0, 1, 2, 0, 2, 3):
+                positions.append(corners[index] * half)
+                normals.append(normal)
+    return np.asarray(positions, np.float32), np.asarray(normals, np.float32)
+
+
+def _cylinder(radius: float, length: float) -> tuple[np.ndarray, np.ndarray]:
+    angles = np.linspace(0, 2 * math.pi, _CYLINDER_SLICES + 1)
+    rim = np.stack([np.cos(angles), np.sin(angles), np.zeros_like(angles)], axis=-1)
+    top, bottom = np.array([0, 0, length / 2]), np.array([0, 0, -length / 2])
+    positions, normals = [], []
+    for i in range(_CYLINDER_SLICES):
+        r0, r1 = rim[i], rim[i + 1]
+        quad = [r0 * radius + bottom, r1 * radius + bottom, r1 * radius + top,
+                r0 * radius + top]
+        for index, n in zip((0, 1, 2, 0, 2, 3), (r0, r1, r1, r0, r1, r0)):
+            positions.append(quad[index])
+            normals.append(n)
+        for centre, sign in ((top, 1.0), (bottom, -1.0)):
+            positions += [centre, r0 * radius + centre, r1 * radius + centre]
+            normals += [np.array([0, 0, sign])] * 3
+    return np.asarray(positions, np.float32), np.asarray(normals, np.float32)
+
+
+def _obj_mesh(filename: str, scale: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """Read a Wavefront OBJ (triangles or polygons; normals computed where it has none)."""
+    vertices, normals, faces = [], [], []
+    for line in Path(filename).read_text().splitlines():
+        parts = line.split()
+        if not parts:
+            continue
+        if parts[0] == 'v':
+            vertices.append([float(x) for x in parts[1:4]])
+        elif parts[0] == 'vn':
+            normals.append([float(x) for x in parts[1:4]])
+        elif parts[0] == 'f':
+            corners = [corner.split('/') for corner in parts[1:]]
+            for i in range(1, len(corners) - 1):
+                faces.append([corners[0], corners[i], corners[i + 1]])
+    vertex_array = np.asarray(vertices, dtype=float)
+    positions = np.empty((len(faces) * 3, 3))
+    face_normals = np.empty((len(faces) * 3, 3))
+    normal_array = np.asarray(normals, dtype=float) if normals else None
+    for f, face in enumerate(faces):
+        corners = [vertex_array[int(c[0]) - 1] for c in face]
+        positions[3 * f:3 * f + 3] = corners
+        if normal_array is not None and all(len(c) > 2 and c[2] for c in face):
+            face_normals[3 * f:3 * f + 3] = [normal_array[int(c[2]) - 1] for c in face]
+        else:
+            flat = np.cross(corners[1] - corners[0], corners[2] - corners[0])
+            face_normals[3 * f:3 * f + 3] = flat / (np.linalg.norm(flat) or 1.0)
+    positions *= np.asarray(scale, dtype=float)
+    return positions.astype(np.float32), face_normals.astype(np.float32)

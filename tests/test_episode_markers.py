@@ -1,15 +1,17 @@
-"""Episode markers on ``episode`` (std_msgs/String): the pick marks its own episodes.
+"""Episode markers on ``episode`` (std_msgs/String): keys and the pick mark episodes.
 
-The sim and the motion node run in-process as in test_motion_node; a probe listens to
-``episode`` as the recorder does.
+``keys`` runs on a pseudo-terminal as in test_teleop_pty; the sim and the motion node run
+in-process as in test_motion_node; a probe listens to ``episode`` as the recorder does.
 """
 
 import threading
+import time
 
 from conftest import wait_for
 from std_msgs.msg import String
 from test_motion_node import TIMEOUT, Rig
-from ur_rg2_common.episode import EPISODE_QOS, EPISODE_TOPIC
+from test_teleop_pty import BANNER, KeysTerminal
+from ur_rg2_common.contract import EPISODE_QOS, EPISODE_TOPIC
 
 BALL = (0.4, -0.3, 0.03)  # world, on the floor
 
@@ -45,3 +47,28 @@ def test_a_pick_is_an_episode_and_a_refused_pick_none(ros_graph):
     missed = rig.pick()
     assert not missed.success, missed.message
     assert markers() == ['start', 'success', 'start', 'failure']
+
+
+def test_keys_b_n_j_mark_a_person_s_episodes(ros_graph):
+    markers = Markers(ros_graph.node('probe'))
+    keys = KeysTerminal(ros_graph.env)
+    try:
+        keys.expect('begin an episode / end it: a success / a failure', timeout=30.0)  # h
+        keys.expect(BANNER)
+        deadline = time.monotonic() + TIMEOUT
+        while not markers():  # a marker sent before discovery completes is lost
+            keys.press('b')
+            keys.expect('episode started')
+            assert time.monotonic() < deadline, 'no marker from keys'
+            time.sleep(0.2)
+        keys.press('N')  # upper case as lower case
+        keys.expect('episode ended: success')
+        keys.press('bj')
+        keys.expect('episode ended: failure')
+        wait_for(lambda: markers()[-4:] == ['start', 'success', 'start', 'failure'], TIMEOUT,
+                 'the four markers')
+        assert set(markers()[:-4]) <= {'start'}
+        keys.press('p')
+        assert keys.wait() == 0
+    finally:
+        keys.close()

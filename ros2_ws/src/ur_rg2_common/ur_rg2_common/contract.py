@@ -36,3 +36,10 @@ IMAGE_QOS = QoSProfile(depth=5, history=HistoryPolicy.KEEP_LAST,
                        reliability=ReliabilityPolicy.RELIABLE)
 TF_QOS = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST,
                     reliability=ReliabilityPolicy.RELIABLE)
+# Episode markers (std_msgs/String on EPISODE_TOPIC, ur_rg2_common.episode publishes them):
+# every marker counts and none is old news to a late joiner, so reliable and not latched.
+EPISODE_TOPIC = 'episode'
+EPISODE_START, EPISODE_SUCCESS, EPISODE_FAILURE = 'start', 'success', 'failure'
+EPISODE_QOS = QoSProfile(depth=10, history=HistoryPolicy.KEEP_LAST,
+                         reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.VOLATILE)

@@ -21,9 +21,10 @@ each message): a frame takes the latest message at or before its time. Per frame
   that ended in success), beside LeRobot's indices and ``timestamp`` (s since the episode's
   first frame).
 
-Episodes come from the markers on ``episode`` (ur_rg2_common.episode): ``start`` opens one,
+Episodes come from the markers on ``episode`` (ur_rg2_common.contract): ``start`` opens one,
 ``success`` or ``failure`` closes it. A recording without markers is one episode, neither a
-success nor a failure. No ROS imports: messages are decoded with the schemas in the file.
+success nor a failure. No ROS message packages or nodes: messages are decoded with the schemas
+in the file.
 """
 
 from __future__ import annotations
@@ -43,8 +44,14 @@ from mcap_ros2.decoder import DecoderFactory
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
-from ur_rg2_common.contract import ARM_JOINTS, GRIPPER_JOINTS
-from ur_rg2_common.episode import EPISODE_TOPIC, FAILURE, START, SUCCESS
+from ur_rg2_common.contract import (
+    ARM_JOINTS,
+    EPISODE_FAILURE,
+    EPISODE_START,
+    EPISODE_SUCCESS,
+    EPISODE_TOPIC,
+    GRIPPER_JOINTS,
+)
 
 from ur_rg2_tools.bag import READ_ERRORS, RecordingError, open_recording
 
@@ -80,7 +87,7 @@ class Episode(NamedTuple):
 
     start: int
     end: int
-    outcome: str | None  # SUCCESS, FAILURE, or None when not marked
+    outcome: str | None  # EPISODE_SUCCESS, EPISODE_FAILURE, or None when not marked
 
 
 def split_episodes(markers: Sequence[tuple[int, str]], start: int, end: int,
@@ -97,11 +104,11 @@ def split_episodes(markers: Sequence[tuple[int, str]], start: int, end: int,
     opened: int | None = None
     for time, value in markers:
         seconds = f'{(time - start) / 1e9:.2f} s'
-        if value == START:
+        if value == EPISODE_START:
             if opened is not None:
                 warn(f'a start at {seconds} while an episode was open: the open one is dropped')
             opened = time
-        elif value in (SUCCESS, FAILURE):
+        elif value in (EPISODE_SUCCESS, EPISODE_FAILURE):
             if opened is None:
                 warn(f'a {value} at {seconds} with no episode open: ignored')
             else:
@@ -377,7 +384,7 @@ def episode_columns(frames: EpisodeFrames, fps: int, episode_index: int,
         'action': frames.action,
         'observation.environment_state': frames.environment,
         'next.done': done,
-        'next.success': done & (frames.episode.outcome == SUCCESS),
+        'next.success': done & (frames.episode.outcome == EPISODE_SUCCESS),
         'timestamp': (np.arange(count) / fps).astype(np.float32),
         'frame_index': np.arange(count, dtype=np.int64),
         'episode_index': np.full(count, episode_index, dtype=np.int64),
@@ -520,8 +527,8 @@ def _write(recordings: Sequence[str | os.PathLike], root: Path, fps: int, repo_i
     (meta / 'info.json').write_text(json.dumps(info, indent=4))
     (root / 'README.md').write_text(_card(repo_id, info))
     outcomes = [episode['outcome'] for episode in episodes]
-    return Summary(len(episodes), frames, outcomes.count(SUCCESS), outcomes.count(FAILURE),
-                   video.codec)
+    return Summary(len(episodes), frames, outcomes.count(EPISODE_SUCCESS),
+                   outcomes.count(EPISODE_FAILURE), video.codec)
 
 
 def _encode(reader: _Reader, sampled: list[EpisodeFrames],
@@ -567,7 +574,7 @@ def _episode_row(frames: EpisodeFrames, columns: dict[str, np.ndarray],
         f'videos/{CAMERA_KEY}/from_timestamp': first / fps,
         f'videos/{CAMERA_KEY}/to_timestamp': (first + count) / fps,
         'meta/episodes/chunk_index': 0, 'meta/episodes/file_index': 0,
-        'success': outcome == SUCCESS, 'outcome': outcome or 'unmarked',
+        'success': outcome == EPISODE_SUCCESS, 'outcome': outcome or 'unmarked',
     }
     stats = {key: feature_stats(value) for key, value in columns.items()}
     stats[CAMERA_KEY] = image_stats(images)

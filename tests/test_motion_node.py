@@ -288,7 +288,7 @@ def test_a_pick_while_one_runs_is_refused_and_a_tool_command_cancels_it(rig):
     rig.show_ball(0.4, -0.3, 0.03)
     wait_for(rig.pick_client.service_is_ready, TIMEOUT, 'the pick_ball service')
     first = rig.pick_client.call_async(Trigger.Request())
-    wait_for(lambda: rig.motion._pick_running, TIMEOUT, 'the pick to start')
+    wait_for(lambda: rig.motion._pick.running, TIMEOUT, 'the pick to start')
     second = rig.pick()
     assert not second.success and 'already running' in second.message
     target = gripper_down((0.3, 0.2, 0.2), 0.0)

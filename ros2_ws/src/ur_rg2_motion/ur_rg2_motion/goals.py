@@ -17,7 +17,7 @@ import numpy as np
 from rclpy.action import ActionClient
 
 from ur_rg2_motion.messages import gripper_goal, trajectory_goal
-from ur_rg2_motion.pick import GripResult, PickError
+from ur_rg2_motion.pick import GripResult, PickCancelledError, PickError
 from ur_rg2_motion.planning import Trajectory
 from ur_rg2_motion.robot_state import RobotState
 
@@ -37,8 +37,8 @@ class ControllerArm:
     """The arm and the RG2 through their controllers: the pick's Arm.
 
     ``state``: the node's robot state. ``check`` (may raise) runs before each goal is sent,
-    under ``send_lock``, and after it ends; ``watch`` (may raise PickError) while waiting,
-    until ``vision_done``; ``speed_scaling`` returns the driver's slider (percent) or None.
+    under ``send_lock``, and after it ends; ``watch`` (may raise, as ``check`` does) while
+    waiting; ``speed_scaling`` returns the driver's slider (percent) or None.
     """
 
     def __init__(self, trajectory: ActionClient, gripper: ActionClient, state: RobotState,
@@ -132,7 +132,8 @@ class ControllerArm:
     def wait(self, future, timeout: float, what: str, handle=None):
         """Wait for an action future; return its result.
 
-        Given up (its goal cancelled) after ``timeout`` s or when ``watch`` raises meanwhile.
+        Given up (its goal cancelled: the arm or the RG2 holds) after ``timeout`` s or when
+        ``watch`` raises meanwhile.
         ``handle``: the goal's, when ``future`` is its result.
         """
         done = threading.Event()
@@ -144,7 +145,7 @@ class ControllerArm:
                     raise PickError(f'{what}: no answer from the controller within '
                                     f'{timeout:.0f} s')
                 self._watch()
-            except PickError:
+            except (PickError, PickCancelledError):
                 cancel_goal(future, handle)
                 raise
         return future.result()

@@ -2,8 +2,9 @@
 
 ``tool_command`` and ``tool_jog`` become trajectories for
 ``joint_trajectory_controller/follow_joint_trajectory`` (closed-form inverse kinematics,
-ur_rg2_motion.kinematics); ``pick_ball`` runs the pick (ur_rg2_motion.pick) on an executor
-thread, driving the arm through that action and the RG2 through
+ur_rg2_motion.kinematics); ``pick_ball``, an action (ur_rg2_motion.pick_server) and a Trigger
+service, runs the pick (ur_rg2_motion.pick, ur_rg2_motion.pick_action) on an executor thread,
+driving the arm through that action and the RG2 through
 ``gripper_controller/gripper_cmd`` (ur_rg2_motion.goals). The robot comes from
 ``robot_description`` (the sim's, or Universal Robots' own with ``tcp_offset``), the frames
 from ``/tf_static`` and ``/tf``, the gripper's opening from its finger joints in any
@@ -11,9 +12,9 @@ from ``/tf_static`` and ``/tf``, the gripper's opening from its finger joints in
 waits for them a bounded moment (ur_rg2_motion.waiting).
 """
 
+from collections.abc import Callable
 import sys
 import threading
-import time
 
 from control_msgs.action import FollowJointTrajectory, GripperCommand
 from geometry_msgs.msg import PoseStamped, TransformStamped
@@ -33,7 +34,9 @@ from ur_rg2_common.tf_buffer import FrameLookupError, pose_matrix
 from ur_rg2_motion.goals import ControllerArm
 from ur_rg2_motion.kinematics import BASE_LINK, ArmKinematics, KinematicsError
 from ur_rg2_motion.messages import FRAME_WAIT_S, finite, pose_of, unit_quaternion
-from ur_rg2_motion.pick import MIN_MOVE_DURATION, PickCancelledError, PickError, run_pick
+from ur_rg2_motion.pick import MIN_MOVE_DURATION, PickError, Progress, no_progress, run_pick
+from ur_rg2_motion.pick_action import REFUSED, PickOutcome, PickRun, attempt
+from ur_rg2_motion.pick_server import PickActionServer
 from ur_rg2_motion.planning import jog_target, limit_tcp_speed, plan_move
 from ur_rg2_motion.robot_state import NotReceivedError, RobotState, subscribe
 from ur_rg2_motion.settings import PARAMETERS, pick_settings
@@ -63,8 +66,7 @@ class MotionNode(Node):
         # Held from the cancel check to the goal's sending, so that a pick never sends a
         # move after a tool command (which cancels it) has sent its own.
         self._send_lock = threading.Lock()
-        self._pick_running = False
-        self._pick_cancel: str | None = None
+        self._pick = PickRun()
         # Whether the running pick still goes by vision's reading of the ball (until it grips).
         self._pick_needs_vision = False
 
@@ -88,11 +90,12 @@ class MotionNode(Node):
         self._gripper = ActionClient(self, GripperCommand, GRIPPER_ACTION)
         self._arm_io = ControllerArm(
             self._trajectory, self._gripper, self.state, self._send_lock, self._check_pick,
-            self._check_vision, self._vision_done, lambda: self._speed_scaling)
+            self._check_pick, self._vision_done, lambda: self._speed_scaling)
         self._result_pub = self.create_publisher(String, 'pick_ball/result', LATCHED_QOS)
         self._episodes = EpisodeMarkers(self)  # each pick an episode on 'episode'
         self.create_service(Trigger, 'pick_ball', self._on_pick,
                             callback_group=self.blocking_group)
+        PickActionServer(self, self._run_pick, self._tcp)
 
     # -- state from the graph -------------------------------------------------------------------
 
@@ -191,43 +194,40 @@ class MotionNode(Node):
     # -- pick_ball: the pick's Arm (ur_rg2_motion.pick) ------------------------------------------
 
     def _cancel_pick(self, source: str) -> None:
-        with self._lock:
-            if self._pick_running and self._pick_cancel is None:
-                self._pick_cancel = source
+        self._pick.stop(f'cancelled by a new arm command ({source})')
 
     def _on_pick(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        outcome = self._run_pick()
+        response.success, response.message = outcome.success, outcome.message
+        return response
+
+    def _run_pick(self, progress: Progress = no_progress,
+                  canceled: Callable[[], bool] | None = None) -> PickOutcome:
+        """Run one pick unless one runs; log it and publish it on ``pick_ball/result``."""
+        if not self._pick.start(canceled):
+            self.get_logger().info(f'pick_ball {REFUSED.message}')
+            return REFUSED
         with self._lock:
-            busy = self._pick_running
-            if not busy:
-                self._pick_running, self._pick_cancel = True, None
-                self._tool_target = None
-        if busy:
-            response.success = False
-            response.message = 'refused: a pick is already running'
-            self.get_logger().info(f'pick_ball {response.message}')
-            return response
-        started = time.monotonic()
-        ball = None
+            self._tool_target = None
         try:
-            ball = self._ball_in_base_link()
-            opening = self._pick(ball)
-            response.success = True
-            response.message = (
-                f'picked the ball at {_xyz(ball)} m in {BASE_LINK} in '
-                f'{time.monotonic() - started:.1f} s (held at {opening * 1000:.0f} mm)')
-            self.get_logger().info(f'pick_ball: {response.message}')
-        except (PickError, PickCancelledError, KinematicsError) as error:
-            where = f'ball at {_xyz(ball)} m in {BASE_LINK}: ' if ball is not None else ''
-            response.success = False
-            response.message = f'{where}{error} (after {time.monotonic() - started:.1f} s)'
-            self.get_logger().info(f'pick_ball failed: {response.message}')
+            outcome = attempt(self._ball_in_base_link,
+                              lambda ball: self._pick_up(ball, progress))
         finally:
             self._pick_needs_vision = False
-            with self._lock:
-                self._pick_running = False
+            self._pick.end()
+        if outcome.success:
+            self.get_logger().info(f'pick_ball: {outcome.message}')
+        else:
+            self.get_logger().info(f'pick_ball failed: {outcome.message}')
         self._result_pub.publish(String(
-            data=f"{'success' if response.success else 'failed'}: {response.message}"))
-        return response
+            data=f"{'success' if outcome.success else 'failed'}: {outcome.message}"))
+        return outcome
+
+    def _tcp(self) -> np.ndarray | None:
+        try:
+            return self._kinematics().tcp_pose(self.state.joints())[:3, 3]
+        except (NotReceivedError, FrameLookupError):
+            return None
 
     def _ball_in_base_link(self) -> np.ndarray:
         try:
@@ -235,7 +235,7 @@ class MotionNode(Node):
         except ValueError as error:
             raise PickError(str(error)) from None
 
-    def _pick(self, ball: np.ndarray) -> float:
+    def _pick_up(self, ball: np.ndarray, progress: Progress) -> float:
         self._pick_needs_vision = True
         # On a worker thread: what a pick needs of the graph may be waited for.
         arm = self.state.kinematics(self.get_parameter('pedestal_half_width').value,
@@ -247,32 +247,22 @@ class MotionNode(Node):
                 raise PickError(f'{name} is not available (is the sim or the driver running?)')
         with self._episodes.marked():
             return run_pick(self._arm_io, arm, ball,
-                            pick_settings(lambda name: self.get_parameter(name).value))
+                            pick_settings(lambda name: self.get_parameter(name).value), progress)
 
     def _check_pick(self) -> None:
-        """Raise when the running pick was cancelled, or lost vision while it needs it."""
-        with self._lock:
-            source = self._pick_cancel
-        if source is not None:
-            raise PickCancelledError(f'cancelled by a new arm command ({source})')
-        self._check_vision()
+        """Raise when the running pick was cancelled, or lost vision while it needs it.
 
-    def _check_vision(self) -> None:
-        """Give up the pick when nothing publishes ``ball/position`` any more: vision is gone.
-
-        Else it would go on blind to where vision last saw the ball. A vision node that exits
-        leaves the graph at once; one killed (SIGKILL) only when DDS's lease runs out.
+        Vision is gone when nothing publishes ``ball/position`` any more; else the pick would
+        go on blind to where vision last saw the ball. A vision node that exits leaves the
+        graph at once; one killed (SIGKILL) only when DDS's lease runs out.
         """
+        self._pick.check()
         if self._pick_needs_vision and self.count_publishers('ball/position') == 0:
             raise PickError('vision lost: nothing publishes ball/position any more (is the '
                             'vision node running?); the pick stopped and the arm holds')
 
     def _vision_done(self) -> None:
         self._pick_needs_vision = False
-
-
-def _xyz(point) -> str:
-    return '({:.3f}, {:.3f}, {:.3f})'.format(*point)
 
 
 def main(args: list[str] | None = None) -> int:

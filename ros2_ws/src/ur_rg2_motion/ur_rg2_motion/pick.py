@@ -4,9 +4,11 @@
 controllers, the latest joint states) and judges each step: the arm must come to rest first,
 stay where it is while the gripper closes (else another command moved it), the gripper must
 stop on the ball (:func:`ur_rg2_motion.planning.grasp_check`) and still hold it after the lift.
-Each failure raises :class:`PickError` (or :class:`PickCancelledError`) saying why.
+Each failure raises :class:`PickError` (or :class:`PickCancelledError`) saying why. Its
+``progress`` hears each phase as it starts, with the TCP positions still to go through.
 """
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 import math
 import time
@@ -36,6 +38,13 @@ STAYED_TOLERANCE = 0.02  # rad: the arm held at the ball sags less than this as 
 HELD_TOLERANCE = 0.005
 # The pick's straight moves must not take more than this share of the joint speed limits.
 PICK_SPEED_SCALE = 0.7
+# The pick's phases, in order: before the plan (the arm to rest, the ball placed), the swing
+# above the ball (the gripper opening meanwhile), the descent, the gripper closing, the lift.
+PLANNING, APPROACHING, DESCENDING, GRASPING, LIFTING = (
+    'planning', 'approaching', 'descending', 'grasping', 'lifting')
+# progress(phase, waypoints): the TCP positions (base_link, m) the phase and those after it go
+# through, in order.
+Progress = Callable[[str, Sequence[np.ndarray]], None]
 
 
 class PickCancelledError(Exception):
@@ -95,8 +104,14 @@ class Arm(Protocol):
         """Wait for the gripper goal sent by start_grip to end."""
 
 
-def run_pick(arm: Arm, model: ArmKinematics, ball: np.ndarray, settings: PickSettings) -> float:
+def no_progress(_phase: str, _waypoints: Sequence[np.ndarray]) -> None:
+    """Hear nothing of the pick's phases (a pick nobody watches)."""
+
+
+def run_pick(arm: Arm, model: ArmKinematics, ball: np.ndarray, settings: PickSettings,
+             progress: Progress = no_progress) -> float:
     """Pick the ball centred at ``ball`` (base_link); return the opening it is held at."""
+    progress(PLANNING, ())
     wait_for_rest(arm)
     joints = arm.joints()
     try:
@@ -106,13 +121,17 @@ def run_pick(arm: Arm, model: ArmKinematics, ball: np.ndarray, settings: PickSet
     arm.check()
     scale = settings.speed_scale
     straight_scale = min(scale, PICK_SPEED_SCALE)
+    above, grasp, lift = (pose[:3, 3] for pose in (plan.above, plan.grasp, plan.lift))
+    progress(APPROACHING, (above, grasp, lift))
     # Opening while the arm swings over: the fingers are clear of the ball above it.
     opening = arm.start_grip(RG2_MAX_OPENING)
     arm.move(plan_joint_move(joints, plan.joints_above, arm.velocity_limits, scale,
                              MIN_MOVE_DURATION), 'moving above the ball')
     arm.finish_grip(opening, 'opening the gripper')
+    progress(DESCENDING, (grasp, lift))
     _straight(arm, model, plan.grasp, settings.approach_speed, straight_scale,
               'descending to the ball')
+    progress(GRASPING, (grasp, lift))
     at_ball = arm.joints()
     closing = arm.start_grip(0.0)
     result = arm.finish_grip(closing, 'closing the gripper')
@@ -122,6 +141,7 @@ def run_pick(arm: Arm, model: ArmKinematics, ball: np.ndarray, settings: PickSet
                          settings.grasp_tolerance)
     if missed:
         raise PickError(missed)
+    progress(LIFTING, (lift,))
     _straight(arm, model, plan.lift, settings.approach_speed, straight_scale,
               'lifting the ball')
     held = arm.opening()

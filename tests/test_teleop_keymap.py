@@ -17,10 +17,12 @@ from ur_rg2_teleop.keymap import (
     MIN_STEP_MM,
     STEP_LADDER_MM,
     CallService,
+    CancelGoal,
     Command,
     Jog,
     Mark,
     Mode,
+    SendGoal,
     action_for,
     describe_key,
     describe_step,
@@ -45,7 +47,8 @@ CONTRACT_OTHERS = {
     'y': CallService('gripper/open'),
     'l': CallService('reset'),
     ' ': CallService('vision/save_frame'),
-    'g': CallService('pick_ball'),
+    'g': SendGoal('pick_ball'),
+    'k': CancelGoal('pick_ball'),
     'b': Mark('start'),
     'n': Mark('success'),
     'j': Mark('failure'),
@@ -62,12 +65,13 @@ def test_bindings_are_exactly_the_contract():
     assert BINDINGS == {**CONTRACT_JOGS, **CONTRACT_OTHERS}
 
 
-@pytest.mark.parametrize('key', sorted(CONTRACT_JOGS) + ['t', 'y', 'l', 'g', 'm', 'h', 'p'])
+@pytest.mark.parametrize('key', sorted(CONTRACT_JOGS) + ['t', 'y', 'l', 'g', 'k', 'm', 'h',
+                                                         'p'])
 def test_upper_case_acts_like_lower_case(key):
     assert action_for(key.upper()) == action_for(key)
 
 
-@pytest.mark.parametrize('key', ['k', 'K', '1', '\r', '\x1b', '\x1b[A', '\x1bOB', '\x1b[1;5C',
+@pytest.mark.parametrize('key', ['j', 'J', '1', '\r', '\x1b', '\x1b[A', '\x1bOB', '\x1b[1;5C',
                                  '\x1bq', 'é', '\x1a'])
 def test_unknown_keys_have_no_action(key):
     assert action_for(key) is None
@@ -111,7 +115,7 @@ def test_help_in_tool_mode_names_the_axes_the_mode_and_the_steps():
     assert '20 mm' in text and '7.5 deg' in text
     assert 'switch to joint mode' in text
     assert 'joint mode' in help_text(5.0).splitlines()[0]
-    assert 'pick the ball' in help_text(5.0)
+    assert 'pick the ball' in help_text(5.0) and 'cancel the pick' in help_text(5.0)
 
 
 def test_tool_steps_move_along_and_turn_about_base_link_axes():

@@ -1,5 +1,6 @@
 """The real ``keys`` executable on a pseudo-terminal, driven key by key against the sim."""
 
+from concurrent.futures import ThreadPoolExecutor
 import math
 import os
 from pathlib import Path
@@ -9,14 +10,19 @@ import signal
 import subprocess
 import sys
 import termios
+import threading
 import time
 
 from conftest import wait_for
 from geometry_msgs.msg import TransformStamped
 import pytest
+from rclpy.action import CancelResponse
+from rclpy.node import Node
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
+from ur_rg2_common.action_server import WorkerActionServer
+from ur_rg2_interfaces.action import PickBall
 from ur_rg2_sim.sim_node import SimNode
 
 KEYS = str(Path(sys.executable).with_name('keys'))
@@ -178,6 +184,43 @@ def call(keys: KeysTerminal, key: str, service: str) -> str:
         time.sleep(0.2)
 
 
+def pick_stand_in(node: Node, picks: list, hold: threading.Event | None = None) -> None:
+    """Serve ``pick_ball`` as the motion node would: one phase, held until ``hold`` is set.
+
+    A cancel ends the held pick canceled; otherwise it succeeds, or fails after MOVE_TIMEOUT.
+    """
+    def execute(goal) -> PickBall.Result:
+        picks.append(time.monotonic())
+        goal.publish_feedback(PickBall.Feedback(phase='approaching', distance_to_go=0.52))
+        deadline = time.monotonic() + MOVE_TIMEOUT
+        while hold is not None and not (hold.wait(0.01) or goal.is_cancel_requested):
+            if time.monotonic() > deadline:
+                goal.abort()
+                return PickBall.Result(message='the test never let the pick go on')
+        if goal.is_cancel_requested:
+            goal.canceled()
+            return PickBall.Result(message="canceled by the action's client; the arm holds")
+        goal.succeed()
+        return PickBall.Result(success=True, message='picked the ball at (0.400, -0.300, -0.090) '
+                                                     'm in base_link in 5.0 s')
+    WorkerActionServer(node, PickBall, 'pick_ball', execute,
+                       workers=ThreadPoolExecutor(2, thread_name_prefix='pick_stand_in'),
+                       cancel_callback=lambda _goal: CancelResponse.ACCEPT)
+
+
+def send_pick(keys: KeysTerminal) -> None:
+    """Press g until the pick's first phase is shown (the action may not be discovered yet)."""
+    deadline = time.monotonic() + CONNECT_TIMEOUT
+    while True:
+        keys.press('g')
+        shown = keys.expect(r'/pick_ball \.\.\. (approaching), 0\.52 m to go'
+                            r'|not ready yet|action not available')
+        if shown.group(1):
+            return
+        assert time.monotonic() < deadline, 'pick_ball never became available'
+        time.sleep(0.2)
+
+
 def test_keys_drive_the_sim_and_p_quits_restoring_the_terminal(ros_graph, keys):
     ros_graph.add(SimNode(context=ros_graph.context, parameter_overrides=[
         Parameter('real_time_factor', value=1.0), Parameter('camera_rate', value=0.0)]))
@@ -262,19 +305,16 @@ def test_without_a_terminal_keys_exits_at_once_non_zero(ros_graph):
 
 
 def test_m_switches_to_tool_mode_and_g_picks(ros_graph, keys):
-    """m: the jog keys send tool_jog steps (and back); g calls pick_ball, its answer shown."""
+    """m: the jog keys send tool_jog steps (and back); g picks, its phase and outcome shown.
+
+    k cancels the pick under way.
+    """
     node = ros_graph.node('motion_stand_in')
     jogs: list[TransformStamped] = []
     node.create_subscription(TransformStamped, 'tool_jog', jogs.append, 10)
     picks = []
-
-    def pick(_request, response):
-        picks.append(time.monotonic())
-        response.success = True
-        response.message = 'picked the ball at (0.400, -0.300, -0.090) m in base_link in 5.0 s'
-        return response
-
-    node.create_service(Trigger, 'pick_ball', pick)
+    hold = threading.Event()
+    pick_stand_in(node, picks, hold)
     keys.press('m')
     keys.expect(r'tool mode: q/w a/s z/x move the TCP \+/- 10 mm along base_link x/y/z')
     keys.press('h')
@@ -297,9 +337,19 @@ def test_m_switches_to_tool_mode_and_g_picks(ros_graph, keys):
     assert step.transform.rotation.z == pytest.approx(math.sin(math.radians(5.0) / 2))
     keys.press('m')
     keys.expect(r'joint mode')
-    assert call(keys, 'g', '/pick_ball') == 'done'
-    keys.expect(r'picked the ball at \(0\.400, -0\.300, -0\.090\) m in base_link')
-    assert picks
+    send_pick(keys)
+    hold.set()
+    keys.expect(r'/pick_ball: done: picked the ball at \(0\.400, -0\.300, -0\.090\) m in '
+                'base_link')
+    hold.clear()
+    send_pick(keys)
+    keys.press('g')  # while one runs
+    keys.expect(r'/pick_ball: a pick is running \(k cancels it\)')
+    keys.press('k')
+    keys.expect(r"/pick_ball: canceled: canceled by the action's client; the arm holds")
+    keys.press('k')
+    keys.expect(r'/pick_ball: no pick running \(g starts one\)')
+    assert len(picks) == 2
     keys.press('p')
     assert keys.wait() == 0
 
@@ -316,18 +366,18 @@ def test_keys_wait_for_the_graph_refusing_its_keys_until_it_is_up(ros_graph, key
     picks = []
 
     def serve(name, _request, response):
-        picks.extend([name] if name == 'pick_ball' else [])
         response.success, response.message = True, f'{name} stand-in'
         return response
 
-    for name in ('gripper/close', 'gripper/open', 'reset', 'vision/save_frame', 'pick_ball'):
+    for name in ('gripper/close', 'gripper/open', 'reset', 'vision/save_frame'):
         graph.create_service(Trigger, name, lambda req, resp, name=name: serve(name, req, resp))
+    pick_stand_in(graph, picks)
     graph.create_subscription(JointState, 'joint_jog', lambda _m: None, 10)
     graph.create_subscription(TransformStamped, 'tool_jog', lambda _m: None, 10)
     keys.expect(r'(?m)^ready\r?$', timeout=CONNECT_TIMEOUT)
     keys.press('g')
-    keys.expect(r'/pick_ball: done: pick_ball stand-in')
-    assert picks == ['pick_ball']
+    keys.expect(r'/pick_ball: done: picked the ball')
+    assert len(picks) == 1
     assert 'service not available' not in keys.output
     keys.press('p')
     assert keys.wait() == 0

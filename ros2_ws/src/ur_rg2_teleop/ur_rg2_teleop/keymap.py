@@ -37,6 +37,20 @@ class CallService:
 
 
 @dataclass(frozen=True)
+class SendGoal:
+    """Send a goal to the action ``action`` (a relative name), showing its phases and outcome."""
+
+    action: str
+
+
+@dataclass(frozen=True)
+class CancelGoal:
+    """Cancel the goal that keys sent to the action ``action``."""
+
+    action: str
+
+
+@dataclass(frozen=True)
 class Mark:
     """Publish the episode marker ``marker`` (EPISODE_START, _SUCCESS, _FAILURE) on ``episode``."""
 
@@ -60,7 +74,7 @@ class Mode(enum.Enum):
     TOOL = 'tool'  # the TCP along and about base_link's axes (tool_jog)
 
 
-Action = Union[Jog, CallService, Command, Mark]
+Action = Union[Jog, CallService, SendGoal, CancelGoal, Command, Mark]
 
 # One pair per joint, in ARM_JOINTS order: first key +, second key -.
 _JOG_KEYS = ('qw', 'as', 'zx', 'er', 'df', 'cv')
@@ -75,7 +89,8 @@ BINDINGS: dict[str, Action] = {
     'y': CallService('gripper/open'),
     'l': CallService('reset'),
     ' ': CallService('vision/save_frame'),
-    'g': CallService('pick_ball'),
+    'g': SendGoal('pick_ball'),
+    'k': CancelGoal('pick_ball'),
     'b': Mark(EPISODE_START),
     'n': Mark(EPISODE_SUCCESS),
     'j': Mark(EPISODE_FAILURE),
@@ -182,6 +197,7 @@ def help_text(step_deg: float, mode: Mode = Mode.JOINT, step_mm: float = 10.0) -
         ('l', 'reset the arm to its home pose'),
         ('space', 'save a camera frame'),
         ('g', 'pick the ball the camera sees'),
+        ('k', 'cancel the pick: the arm stops where it is'),
         ('b / n / j', 'begin an episode / end it: a success / a failure'),
         ('m', f"switch to {'joint' if mode is Mode.TOOL else 'tool'} mode"),
         ('+ / -', step),

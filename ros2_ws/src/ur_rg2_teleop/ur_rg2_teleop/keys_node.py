@@ -40,10 +40,12 @@ from ur_rg2_teleop.keymap import (
     SERVICES,
     STEP_LADDER_MM,
     CallService,
+    CancelGoal,
     Command,
     Jog,
     Mark,
     Mode,
+    SendGoal,
     action_for,
     describe_key,
     describe_step,
@@ -54,6 +56,7 @@ from ur_rg2_teleop.keymap import (
     smaller_step,
     tool_step,
 )
+from ur_rg2_teleop.pick_client import PICK_ACTION, PickClient
 from ur_rg2_teleop.readiness import Readiness, needs
 from ur_rg2_teleop.terminal import KeyReader, Stop, raw_mode, signal_pipe
 
@@ -65,7 +68,7 @@ _JOG_QUEUE_DEPTH = 100
 # Tool-mode steps are along and about this frame's axes.
 TOOL_FRAME = 'base_link'
 # Services whose success means the arm moved: the pose is shown once it settles.
-_ARM_SERVICES = ('reset', 'pick_ball')
+_ARM_SERVICES = ('reset',)
 # How often keys looks whether the nodes it waits for have come up, s.
 _READINESS_PERIOD = 0.2
 
@@ -90,6 +93,7 @@ class KeysNode(Node):
         self._episodes = EpisodeMarkers(self)  # b, n, j: a person's episodes
         self._trigger_clients: dict[str, Client] = {
             name: self.create_client(Trigger, name) for name in SERVICES}
+        self._pick = PickClient(self, console, self._arm_moved)
         self.create_subscription(
             JointState, 'joint_states', self._on_joint_states, qos_profile_sensor_data)
         # Volatile: the episodes that end while keys runs, not one latched before it started.
@@ -128,6 +132,10 @@ class KeysNode(Node):
             self._jog(action)
         elif isinstance(action, CallService):
             self._call(action.service)
+        elif isinstance(action, SendGoal):
+            self._pick.send()
+        elif isinstance(action, CancelGoal):
+            self._pick.cancel()
         elif isinstance(action, Mark):
             self._episodes.mark(action.marker)
             self._console.line(mark_line(action.marker))
@@ -167,6 +175,8 @@ class KeysNode(Node):
         def available(name: str) -> bool:
             if name in publishers:
                 return publishers[name].get_subscription_count() > 0
+            if name == PICK_ACTION:
+                return self._pick.server_is_ready()
             return self._trigger_clients[name].service_is_ready()  # as _call finds it
 
         status = self._readiness.update(available)
@@ -225,6 +235,10 @@ class KeysNode(Node):
         if moves_arm and response.success:
             with self._lock:
                 self._watcher.moved(time.monotonic())
+
+    def _arm_moved(self) -> None:
+        with self._lock:
+            self._watcher.moved(time.monotonic())
 
     def _on_policy_result(self, message: String) -> None:
         self._console.line(outcome_line('policy episode', *result_outcome(message.data)))

@@ -12,9 +12,10 @@ from __future__ import annotations
 from collections.abc import Callable
 import threading
 
-from ur_rg2_teleop.keymap import Action, CallService, Jog, Mode
+from ur_rg2_teleop.keymap import Action, CallService, Jog, Mode, SendGoal
 
-# What each node of the graph offers keys: the services it serves, the topics it listens to.
+# What each node of the graph offers keys: the services and actions it serves, the topics it
+# listens to.
 PROVIDERS: dict[str, tuple[str, ...]] = {
     'sim': ('joint_jog', 'gripper/close', 'gripper/open', 'reset'),
     'vision': ('vision/save_frame',),
@@ -23,11 +24,13 @@ PROVIDERS: dict[str, tuple[str, ...]] = {
 
 
 def needs(action: Action | None, mode: Mode) -> str | None:
-    """Return the service or topic ``action`` uses in ``mode``, None if it uses none."""
+    """Return the service, action or topic ``action`` uses in ``mode``, None if it uses none."""
     if isinstance(action, Jog):
         return 'tool_jog' if mode is Mode.TOOL else 'joint_jog'
     if isinstance(action, CallService):
         return action.service
+    if isinstance(action, SendGoal):
+        return action.action
     return None
 
 

@@ -71,7 +71,7 @@ def test_upper_case_acts_like_lower_case(key):
     assert action_for(key.upper()) == action_for(key)
 
 
-@pytest.mark.parametrize('key', ['j', 'J', '1', '\r', '\x1b', '\x1b[A', '\x1bOB', '\x1b[1;5C',
+@pytest.mark.parametrize('key', ['o', 'O', '1', '\r', '\x1b', '\x1b[A', '\x1bOB', '\x1b[1;5C',
                                  '\x1bq', 'é', '\x1a'])
 def test_unknown_keys_have_no_action(key):
     assert action_for(key) is None

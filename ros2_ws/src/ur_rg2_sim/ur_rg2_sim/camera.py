@@ -131,15 +131,8 @@ class Camera:
         self._rotation = optical_rotation(config.position, config.look_at)
         self._position = np.asarray(config.position, dtype=float)
         self._floor_look = floor_look(config)
-        if self.renderer.name == 'egl':
-            self._gl: Optional[GlRenderer] = None
-        else:
-            vfov = math.degrees(2 * math.atan((h / 2) / self.fy))
-            self._view = pybullet.computeViewMatrix(
-                list(config.position), list(config.look_at), list(self._rotation @ [0, -1, 0]))
-            self._projection = pybullet.computeProjectionMatrixFOV(vfov, w / h, NEAR_CLIP,
-                                                                   FAR_CLIP)
-            self._floor_rgb, self._floor_depth = self._render_floor()
+        self._gl: Optional[GlRenderer] = None
+        self._tiny: Optional[tuple] = None  # TinyRenderer's matrices and floor, made when used
 
     @property
     def k(self) -> np.ndarray:
@@ -161,9 +154,15 @@ class Camera:
         return self.fx * x / z + self.cx, self.fy * y / z + self.cy
 
     def render(self) -> Frame:
-        """Render the world now; depth is metres along the optical axis, +inf: no return."""
+        """Render the world now; depth is metres along the optical axis, +inf: no return.
+
+        A world with a textured body (the data set's patterned balls) is drawn by TinyRenderer
+        whichever renderer was chosen: the OpenGL renderer draws colours, not textures.
+        """
         if self.renderer.name == 'egl':
-            return self.draw(self.snapshot())
+            snapshot = self.snapshot()
+            if not snapshot.textured:
+                return self.draw(snapshot)
         return self._render_tiny()
 
     def snapshot(self) -> SceneSnapshot:
@@ -190,8 +189,17 @@ class Camera:
 
     def _render_tiny(self) -> Frame:
         cfg = self.config
+        if self._tiny is None:
+            vfov = math.degrees(2 * math.atan((cfg.height / 2) / self.fy))
+            self._tiny = (
+                pybullet.computeViewMatrix(list(cfg.position), list(cfg.look_at),
+                                           list(self._rotation @ [0, -1, 0])),
+                pybullet.computeProjectionMatrixFOV(vfov, cfg.width / cfg.height, NEAR_CLIP,
+                                                    FAR_CLIP),
+                *self._render_floor())
+        view, projection, floor_rgb, floor_depth = self._tiny
         _, _, rgba, depth_buffer, _ = pybullet.getCameraImage(
-            cfg.width, cfg.height, self._view, self._projection, shadow=0,
+            cfg.width, cfg.height, view, projection, shadow=0,
             lightDirection=list(cfg.light_direction), renderer=pybullet.ER_TINY_RENDERER,
             flags=pybullet.ER_NO_SEGMENTATION_MASK, physicsClientId=self.world.client)
         depth_buffer = np.asarray(depth_buffer, dtype=np.float32).reshape(cfg.height, cfg.width)
@@ -202,9 +210,9 @@ class Camera:
         depth += np.float32(FAR_CLIP)
         np.divide(np.float32(FAR_CLIP * NEAR_CLIP), depth, out=depth)
         np.copyto(depth, np.float32(np.inf), where=depth_buffer >= 1.0)
-        floor_in_front = self._floor_depth < depth
-        np.copyto(depth, self._floor_depth, where=floor_in_front)
-        cv2.copyTo(self._floor_rgb, floor_in_front.view(np.uint8), rgb)
+        floor_in_front = floor_depth < depth
+        np.copyto(depth, floor_depth, where=floor_in_front)
+        cv2.copyTo(floor_rgb, floor_in_front.view(np.uint8), rgb)
         return Frame(rgb=rgb, depth=depth)
 
     def _render_floor(self) -> tuple[np.ndarray, np.ndarray]:

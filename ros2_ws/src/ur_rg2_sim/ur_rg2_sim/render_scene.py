@@ -30,6 +30,7 @@ class SceneSnapshot:
     keys: tuple[GeometryKey, ...]
     poses: np.ndarray
     colors: np.ndarray
+    textured: bool = False  # a shape has a texture, which the OpenGL renderer does not draw
 
 
 def read_snapshot(client: int) -> SceneSnapshot:
@@ -38,7 +39,7 @@ def read_snapshot(client: int) -> SceneSnapshot:
     Shapes and colours are read afresh each time (some 20 microseconds for the sim's world),
     so a body added, removed or repainted shows in the next frame.
     """
-    keys, poses, colors = [], [], []
+    keys, poses, colors, textured = [], [], [], False
     for index in range(pybullet.getNumBodies(physicsClientId=client)):
         body = pybullet.getBodyUniqueId(index, physicsClientId=client)
         shapes = pybullet.getVisualShapeData(body, physicsClientId=client)
@@ -51,15 +52,16 @@ def read_snapshot(client: int) -> SceneSnapshot:
             states = pybullet.getLinkStates(body, list(range(links)), physicsClientId=client)
             frames.update((link, _matrix(state[4], state[5]))  # the URDF link frame
                           for link, state in enumerate(states))
-        for _, link, kind, dimensions, filename, position, orientation, rgba, *_ in shapes:
+        for _, link, kind, dimensions, filename, position, orientation, rgba, *rest in shapes:
             if kind == pybullet.GEOM_PLANE:
                 continue  # the floor: the camera draws it itself
+            textured |= bool(rest) and rest[0] >= 0
             keys.append((kind, tuple(round(d, 9) for d in dimensions),
                          filename.decode() if isinstance(filename, bytes) else filename))
             poses.append(frames[link] @ _matrix(position, orientation))
             colors.append(rgba)
     return SceneSnapshot(tuple(keys), np.asarray(poses, dtype=np.float32).reshape(-1, 4, 4),
-                         np.asarray(colors, dtype=np.float32).reshape(-1, 4))
+                         np.asarray(colors, dtype=np.float32).reshape(-1, 4), textured)
 
 
 def _matrix(position, orientation) -> np.ndarray:

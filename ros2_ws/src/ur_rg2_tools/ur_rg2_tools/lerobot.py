@@ -31,6 +31,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
+from functools import partial
 import json
 import math
 import os
@@ -125,7 +126,6 @@ def split_episodes(markers: Sequence[tuple[int, str]], start: int, end: int,
 class Streams:
     """What a recording holds of the topics a data set is made of (log times in ns)."""
 
-    path: Path
     start: int
     end: int
     arm_times: list[int] = field(default_factory=list)
@@ -168,11 +168,18 @@ class _Reader:
                                           f'({channel.message_encoding})')
                     self._decoders[channel.id] = decoder
                 yield (self.names[channel.topic], message.log_time,
-                       lambda d=decoder, data=message.data: d(data))
+                       partial(self._decode, decoder, channel.topic, message.data))
         except READ_ERRORS as error:
             raise ExportError(f'{self.path}: cannot read its messages ({type(error).__name__}: '
                               f'{error}); `ros2 run ur_rg2_tools recover {self.path}` keeps '
                               'what is readable') from None
+
+    def _decode(self, decoder: Callable[[bytes], Any], topic: str, data: bytes) -> Any:
+        try:
+            return decoder(data)
+        except Exception as error:  # noqa: BLE001 - the CDR decoder raises what it meets
+            raise ExportError(f'{self.path}: a {topic} message does not decode as its schema '
+                              f'says ({type(error).__name__}: {error})') from None
 
     def close(self) -> None:
         """Close the file."""
@@ -182,7 +189,7 @@ class _Reader:
 def read_streams(reader: _Reader) -> Streams:
     """Read joint states, sightings, markers and the images' times (not their pixels)."""
     recording = reader.recording
-    streams = Streams(reader.path, recording.start_ns, recording.end_ns)
+    streams = Streams(recording.start_ns, recording.end_ns)
     for name, time, decode in reader.messages({JOINT_STATES, BALL, EPISODE_TOPIC,
                                                COLOR_IMAGE}):
         if name == COLOR_IMAGE:

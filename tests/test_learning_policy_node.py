@@ -5,6 +5,7 @@ where the sim has the ball, as the vision node would in its optical frame, and r
 back from /tf. The policy node runs the shipped Reach policy.
 """
 
+import re
 import threading
 
 from conftest import start_sim, wait_for
@@ -13,7 +14,7 @@ import numpy as np
 import pytest
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Bool
+from std_msgs.msg import Bool, String
 from std_srvs.srv import Trigger
 from test_episode_markers import Markers
 from tf2_msgs.msg import TFMessage
@@ -54,6 +55,9 @@ def test_policy_run_drives_the_tcp_to_the_ball(ros_graph):
             driving.append(message.data)
 
     probe.create_subscription(Bool, 'policy/driving', on_driving, LATCHED_QOS)
+    results: list[str] = []
+    probe.create_subscription(String, 'policy/result', lambda m: results.append(m.data),
+                              LATCHED_QOS)
     markers = Markers(probe)
     ball = probe.create_publisher(PointStamped, 'ball/position', 10)
     run = probe.create_client(Trigger, 'policy/run')
@@ -102,6 +106,11 @@ def test_policy_run_drives_the_tcp_to_the_ball(ros_graph):
              f'the TCP at the ball top (it is {tcp_to_ball_top():.3f} m away)')
     # The episode on 'episode' too; the refused runs marked none.
     wait_for(lambda: markers() == ['start', 'success'], 10.0, 'a start and a success marker')
+    # The outcome line on policy/result, latched, with the time taken.
+    wait_for(lambda: results, 10.0, 'the outcome on policy/result')
+    assert len(results) == 1
+    assert re.fullmatch(r'success: reached the ball: TCP \d+ mm from its top .*\(\d+\.\d s\)',
+                        results[0]), results
 
 
 PICK_PLACEMENTS = 5
@@ -188,6 +197,9 @@ def test_pick_refuses_a_ball_unseen_or_out_of_reach_and_stops_when_it_is_lost(ro
     driving: list[bool] = []
     probe.create_subscription(Bool, 'policy/driving', lambda m: driving.append(m.data),
                               LATCHED_QOS)
+    results: list[str] = []
+    probe.create_subscription(String, 'policy/result', lambda m: results.append(m.data),
+                              LATCHED_QOS)
     ball = probe.create_publisher(PointStamped, 'ball/position', 10)
     run = probe.create_client(Trigger, 'policy/run')
     shown: list[tuple[float, float, float] | None] = [None]
@@ -233,6 +245,9 @@ def test_pick_refuses_a_ball_unseen_or_out_of_reach_and_stops_when_it_is_lost(ro
     wait_for(lambda: driving and not driving[-1], 3 * TIMEOUT, 'the episode to end')
     wait_for(lambda: said('policy episode: stopped: the ball is no longer seen'), 10.0,
              'the outcome line naming the lost ball')
+    wait_for(lambda: results, 10.0, 'the outcome on policy/result')
+    assert re.fullmatch(r'failed: stopped: the ball is no longer seen.*\(\d+\.\d s\)',
+                        results[0]), results
 
 
 def test_a_directory_without_a_policy_is_refused_at_start(ros_graph, tmp_path):

@@ -6,7 +6,9 @@ environment builds them, from the robot's state (ur_rg2_motion.robot_state) and 
 ``ball/position``. Each step is a one-point trajectory for
 ``joint_trajectory_controller/follow_joint_trajectory`` and, for Pick, a gripper goal; the
 next step starts when the controllers have finished them, in step with the simulation however
-fast it runs. ``policy/driving`` (std_msgs/Bool, latched) says whether the policy drives the arm.
+fast it runs. ``policy/driving`` (std_msgs/Bool, latched) says whether the policy drives the arm;
+``policy/result`` (std_msgs/String, latched) is each episode's outcome line, as
+``pick_ball/result`` is each pick's: ``success: ...`` or ``failed: ...``, then the time taken.
 """
 
 from __future__ import annotations
@@ -76,6 +78,7 @@ class PolicyNode(Node):
         self._gripper = ActionClient(self, GripperCommand, GRIPPER_ACTION)
         self._driving = self.create_publisher(Bool, 'policy/driving', LATCHED_QOS)
         self._driving.publish(Bool(data=False))
+        self._result = self.create_publisher(String, 'policy/result', LATCHED_QOS)
         self._episodes = EpisodeMarkers(self)  # each episode on 'episode' too
         # policy/run may wait for the tree (bounded): on a worker thread (run_node's
         # BlockingGroupExecutor), so that the transforms it waits for keep arriving.
@@ -233,6 +236,8 @@ class PolicyNode(Node):
         self._driving.publish(Bool(data=False))
         self._episodes.end(success=reached)
         seconds = time.monotonic() - episode.started
+        self._result.publish(String(
+            data=f"{'success' if reached else 'failed'}: {outcome} ({seconds:.1f} s)"))
         # rclpy refuses two severities from one call site: one call each.
         if reached:
             self.get_logger().info(f'policy episode: {outcome} ({seconds:.1f} s)')

@@ -50,7 +50,7 @@ _GRAPH = re.compile(r'^(ros2 launch ur_rg2_bringup graph\.launch\.py|'
                     r'python -m ur_rg2_bringup\.run)(?!.*--(show-args|help))')
 _STREAMING = re.compile(r'^(ros2 (run|topic echo(?!.*--once)|topic hz)|policy|vision|sim)\b')
 # ros2 run's commands that are no nodes, and end by themselves.
-_ENDS_BY_ITSELF = re.compile(r'^ros2 run ur_rg2_tools recover\b|\s--help\b')
+_ENDS_BY_ITSELF = re.compile(r'^ros2 run ur_rg2_tools (recover|info)\b|\s--help\b')
 _SIM = re.compile(r'^(ros2 run ur_rg2_sim sim|sim)\b')
 READY = ((_GRAPH, r'ur_rg2_sim\]: simulating'),
          (_SIM, r'ur_rg2_sim\]: simulating'),

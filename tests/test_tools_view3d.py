@@ -63,6 +63,7 @@ def test_only_the_meshes_the_description_names_are_served(served):
                  'vendor/%2e%2e/view3d_web.py', 'mesh/..%2fsecret.txt'):
         assert get(url + path)[0] == 404, path
     assert get(url + 'vendor/three/three.module.js')[0] == 200
+    assert get(url + 'favicon.ico')[0] == 200  # the camera viewer's icon: no 404 in the console
     assert get(url + 'cloud')[0] == 503  # no depth image yet: said so, no crash
 
 

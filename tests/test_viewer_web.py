@@ -97,6 +97,12 @@ def test_page_is_served_on_loopback(server):
     assert server.address == '127.0.0.1' and server.url.startswith('http://127.0.0.1:')
 
 
+def test_the_tab_icon_is_served(server):
+    status, content_type, body = get(server.url + 'favicon.ico')
+    assert status == 200 and content_type.startswith('image/svg+xml')
+    assert body.startswith(b'<svg') and b'<circle' in body
+
+
 def test_snapshot_is_the_latest_frame_as_jpeg(server):
     status, _, body = get(server.url + 'snapshot')
     assert status == 503 and b'no camera frame' in body

@@ -8,7 +8,7 @@ urdf-loader (vendored, ``web/vendor/PROVENANCE.md``) and polls:
 intrinsics, last pick, all in ``world``; ``/cloud`` the depth camera's points (downsampled, in
 ``world``, with their colours); ``/robot.urdf`` the robot description with each mesh renamed
 ``mesh/N.ext``; ``/mesh/N.ext`` the Nth mesh file the description names (no other file is
-served); ``/vendor/...`` the vendored modules.
+served); ``/vendor/...`` the vendored modules; ``/favicon.ico`` the camera viewer's icon.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ import xml.etree.ElementTree as ET
 from aiohttp import web
 from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
 import numpy as np
-from ur_rg2_vision.viewer_web import ViewerServer
+from ur_rg2_vision.viewer_web import ViewerServer, favicon
 
 WEB = importlib.resources.files(__package__).joinpath('web')
 MESH_TYPES = {'.obj': 'text/plain', '.stl': 'model/stl', '.dae': 'model/vnd.collada+xml'}
@@ -171,6 +171,7 @@ def create_app(scene: Scene) -> web.Application:
         web.get('/cloud', _cloud),
         web.get('/robot.urdf', _urdf),
         web.get(r'/mesh/{name:[0-9]+\.[a-z]+}', _mesh),
+        web.get('/favicon.ico', favicon),
     ])
     # aiohttp's static route refuses paths that leave the directory, and symbolic links.
     app.router.add_static('/vendor', Path(str(WEB.joinpath('vendor'))))

@@ -4,7 +4,8 @@ No ROS here: the node (``viewer_node``) feeds a :class:`FrameHub` from its callb
 :class:`ViewerServer`; tests drive both directly.
 
 Routes: ``/`` the page, ``/state`` JSON for the page, ``/stream`` MJPEG
-(``multipart/x-mixed-replace``, like ROS's web_video_server), ``/snapshot`` one JPEG.
+(``multipart/x-mixed-replace``, like ROS's web_video_server), ``/snapshot`` one JPEG,
+``/favicon.ico`` the tab's icon.
 """
 
 from __future__ import annotations
@@ -26,6 +27,9 @@ import numpy as np
 BOUNDARY = 'frame'
 GRIPPER_PREFIX = 'rg2_'
 PAGE = importlib.resources.files(__package__).joinpath('web', 'index.html').read_text('utf-8')
+# The tab's icon, the ball: browsers ask for /favicon.ico whatever a page says.
+FAVICON = ('<svg xmlns="http://www.w3.org/2000/svg" viewBox="0 0 16 16">'
+           '<circle cx="8" cy="8" r="7" fill="#d62020"/></svg>')
 
 
 def encode_jpeg(rgb: np.ndarray, quality: int) -> bytes:
@@ -199,6 +203,12 @@ async def _index(request: web.Request) -> web.Response:
     return web.Response(text=PAGE, content_type='text/html', headers={'Cache-Control': 'no-cache'})
 
 
+async def favicon(_request: web.Request) -> web.Response:
+    """Answer ``/favicon.ico`` with the ball icon (the 3D view's page serves it too)."""
+    return web.Response(text=FAVICON, content_type='image/svg+xml',
+                        headers={'Cache-Control': 'max-age=86400'})
+
+
 async def _state(request: web.Request) -> web.Response:
     return web.json_response(request.app[HUB].state(), headers={'Cache-Control': 'no-store'})
 
@@ -252,6 +262,7 @@ def create_app(hub: FrameHub) -> web.Application:
         web.get('/state', _state),
         web.get('/stream', _stream, allow_head=False),  # HEAD would hold a stream task open
         web.get('/snapshot', _snapshot),
+        web.get('/favicon.ico', favicon),
     ])
     app.on_startup.append(_attach)
     app.on_shutdown.append(_close)

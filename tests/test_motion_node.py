@@ -270,7 +270,8 @@ def test_a_nearly_unit_quaternion_is_normalised_and_executed(rig, capfd):
     assert len(warnings()) == count
 
 
-def test_pick_without_a_recent_ball_or_out_of_reach_is_refused_with_the_reason(rig):
+def test_pick_without_a_recent_ball_or_out_of_reach_is_refused_with_the_reason(rig, capfd):
+    warnings = Warnings(capfd)
     answer = rig.pick()
     assert not answer.success and 'no ball seen' in answer.message
     before = rig.wait_still()
@@ -282,6 +283,8 @@ def test_pick_without_a_recent_ball_or_out_of_reach_is_refused_with_the_reason(r
     assert f'(2.000, -1.000, {0.03 - pedestal:.3f})' in answer.message  # in base_link
     assert np.abs(rig.wait_still() - before).max() < 1e-3
     wait_for(lambda: rig.results and 'out of reach' in rig.results[-1], 10, 'the result topic')
+    # The caller shows the outcome (keys' terminal, where warnings show too): no warning of it.
+    assert not [line for line in warnings() if 'pick_ball' in line], warnings.console()
 
 
 def test_a_pick_while_one_runs_is_refused_and_a_tool_command_cancels_it(rig):

@@ -1,8 +1,8 @@
 """Run every benchmark and print one table: ``python -m bench [name ...]``.
 
 Names: sim, frames, controllers, teleop, vision, detector, viewer, record, dataset, motion,
-learning, setup, launch, discovery, soak (default: all; soak alone takes 10 minutes, SOAK_SECONDS
-sets its length).
+learning, setup, launch, discovery, graph, soak (default: all; soak alone takes 10 minutes,
+SOAK_SECONDS sets its length; graph takes GRAPH_SECONDS, 60 by default, and a warm-up).
 Each module's ``run()`` returns rows of (metric, measured, target). The numbers mean most on
 an otherwise idle machine.
 """
@@ -13,7 +13,8 @@ import sys
 import time
 
 BENCHMARKS = ('sim', 'frames', 'controllers', 'teleop', 'vision', 'detector', 'viewer',
-              'record', 'dataset', 'motion', 'learning', 'setup', 'launch', 'discovery', 'soak')
+              'record', 'dataset', 'motion', 'learning', 'setup', 'launch', 'discovery', 'graph',
+              'soak')
 
 
 def print_table(rows: list[tuple[str, str, str]]) -> None:

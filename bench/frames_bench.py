@@ -10,8 +10,9 @@ Run alone: python -m bench.frames_bench
 
 import time
 
-from builtin_interfaces.msg import Time
+from geometry_msgs.msg import PoseStamped
 from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from tf2_msgs.msg import TFMessage
 
@@ -82,22 +83,30 @@ def _publish_cost() -> list[tuple[str, str, str]]:
     # Not spun: its DDS reader still receives, which is all the publisher's cost depends on.
     reader = Node('frames_bench_reader', context=context)
     reader.create_subscription(TFMessage, '/tf', lambda _: None, TF_QOS)
+    reader.create_subscription(PoseStamped, 'ball/true_pose', lambda _: None, 10)
     world = SimWorld(WorldConfig())
+    executor = SingleThreadedExecutor(context=context)
     try:
         frames = FramePublisher(node, load_frame_tree(world, world.urdf),
                                 robot_description(world.urdf), '', world.joint_names)
+        # A matched reader, as its matched event tells: publish then really serialises and
+        # sends (without one, /tf is not published at all).
+        executor.add_node(node)
         deadline = time.monotonic() + 20
-        while not node.count_subscribers('/tf') and time.monotonic() < deadline:
-            time.sleep(0.05)  # a matched reader: publish then really serialises and sends
+        while not frames.subscribed and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.05)
+        settle = time.monotonic() + 1.0  # the other topic's match
+        while time.monotonic() < settle:
+            executor.spin_once(timeout_sec=0.05)
         times = []
         for i in range(PUBLISHES):
             world.step()
             sample = world.joint_states()
             start = time.perf_counter()
-            frames.publish(Time(sec=i // 100, nanosec=i % 100 * 10_000_000), sample.positions,
-                           world.body_pose(world.ball))
+            frames.publish(i * 10_000_000, sample.positions, world.body_pose(world.ball))
             times.append(1e6 * (time.perf_counter() - start))
     finally:
+        executor.shutdown()
         world.close()
         reader.destroy_node()
         node.destroy_node()

@@ -58,6 +58,29 @@ def private_rss_mb(pid: int) -> float:
     return math.nan
 
 
+def load() -> str:
+    """Return the 1-minute load average (``/proc/loadavg``), to print beside what it slows."""
+    return Path('/proc/loadavg').read_text().split()[0]
+
+
+def raw_steps_per_second(world, seconds: float) -> float:
+    """Return how many times a second pybullet's stepSimulation alone steps ``world``.
+
+    ``world`` is a ur_rg2_sim SimWorld: the physics the sim node or an environment runs, timed
+    without anything around it, to compare them with.
+    """
+    import pybullet
+
+    client = world.client
+    steps = 0
+    start = time.perf_counter()
+    while time.perf_counter() - start < seconds:
+        for _ in range(100):
+            pybullet.stepSimulation(physicsClientId=client)
+        steps += 100
+    return steps / (time.perf_counter() - start)
+
+
 def percentile(values: Sequence[float], q: float) -> float:
     """Return the ``q``-th percentile of ``values`` (nan when there are none)."""
     return float(np.percentile(values, q)) if len(values) else float('nan')

@@ -23,7 +23,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image, JointState
 from tf2_msgs.msg import TFMessage
 
-from bench.processes import bench_env, cpu_seconds, node_process, spun_node
+from bench.processes import bench_env, cpu_seconds, load, node_process, spun_node
 
 DOMAIN_ID = 214
 WINDOW_S = 30.0  # recorded and measured
@@ -39,11 +39,6 @@ def stamp(topic: str, cdr: bytes) -> tuple[int, int]:
     """Return a message's stamp: its header's, or for /tf its first transform's header's."""
     # After the 4-byte encapsulation header; a TFMessage starts with its sequence length.
     return struct.unpack_from('<iI', cdr, 8 if topic == '/tf' else 4)
-
-
-def load() -> str:
-    """Return the 1-minute load average."""
-    return Path('/proc/loadavg').read_text().split()[0]
 
 
 def run() -> list[tuple[str, str, str]]:

@@ -140,7 +140,7 @@ class SimNode(Node):
             return  # nothing to sample for
         sample = world.joint_states()
         self._joint_stream.publish((*sample.positions, *sample.velocities, *sample.efforts),
-                             divmod(stamp_ns, NS))
+                                   divmod(stamp_ns, NS))
         if self._frames.subscribed:
             self._frames.publish(stamp_ns, sample.positions, world.body_pose(world.ball))
 

@@ -93,9 +93,9 @@ def test_out_of_range_step_is_refused_at_start(ros_graph):
 
 def test_unknown_key_says_so_on_one_line(ros_graph):
     keys = Keys(ros_graph)
-    keys.press('k')
+    keys.press('o')
     keys.node.handle_key('\x1b[A')
-    assert keys.lines() == ["'k' has no function (h: help)", 'Up has no function (h: help)']
+    assert keys.lines() == ["'o' has no function (h: help)", 'Up has no function (h: help)']
     assert not keys.jogs
 
 

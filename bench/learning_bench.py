@@ -1,14 +1,15 @@
 """Benchmark of the learning environments and the shipped Reach and Pick policies.
 
 Environment steps per second with random actions (episodes reset as they end): one
-environment in this process; ``gymnasium.vector.AsyncVectorEnv`` with one worker process per
-core (every step a round trip from this process to each worker), with the Reach environment
-and with an environment that does nothing but has Reach's spaces and info (the most
-AsyncVectorEnv itself can deliver here); one process per core, each stepping its own
-environment (as distributed trainers' environment runners do). Then the
-shipped Reach and Pick policies over 100 held-out episodes (evaluate_policy's seeds), with
-the training wall time their policy.json recorded (the Pick policy in the live graph is in
-motion_bench, beside pick_ball). No torch needed.
+environment in this process, and the physics steps it takes per second against those of its
+world stepped by pybullet alone (what the environment's own work leaves of the physics);
+``gymnasium.vector.AsyncVectorEnv`` with one worker process per core (every step a round trip
+from this process to each worker), with the Reach environment and with an environment that
+does nothing but has Reach's spaces and info (the most AsyncVectorEnv itself can deliver
+here); one process per core, each stepping its own environment (as distributed trainers'
+environment runners do). Then the shipped Reach and Pick policies over 100 held-out
+episodes (evaluate_policy's seeds), with the training wall time their policy.json recorded
+(the Pick policy in the live graph is in motion_bench, beside pick_ball). No torch needed.
 Run alone: python -m bench.learning_bench
 """
 
@@ -25,7 +26,12 @@ from ur_rg2_learning.actor import Actor, shipped_policy
 from ur_rg2_learning.evaluate import DEFAULT_SEED, success_rate
 from ur_rg2_learning.scripted import pick_action
 
+from bench.processes import load, raw_steps_per_second
+
 STEPS = {REACH_ID: 6000, PICK_ID: 2000}
+# Physics share: this many env steps, then the env's world stepped alone as long, in turns.
+SHARE_STEPS = {REACH_ID: 1500, PICK_ID: 500}
+SHARE_ROUNDS = 3
 VECTOR_STEPS = 3000  # per worker
 EPISODES = 100
 
@@ -57,9 +63,34 @@ def single_rates(env_id: str, steps: int) -> tuple[float, float]:
         env.close()
 
 
-def load() -> str:
-    """Return the 1-minute load average, to print beside what it slows."""
-    return open('/proc/loadavg').read().split()[0]
+def physics_share(env_id: str, steps: int, rounds: int) -> tuple[float, float, float]:
+    """Return an env's physics steps/s, stepSimulation's alone on its world, its env steps/s.
+
+    The first is env steps/s with random actions (episodes reset as they end) times the
+    physics steps each took on average. In turns, so that the machine's drift hits both
+    alike: ``steps`` env steps, then the env's world stepped by pybullet alone for as long,
+    ``rounds`` times.
+    """
+    env = gym.make(env_id)
+    world = env.unwrapped.world
+    rng = np.random.default_rng(0)
+    actions = rng.uniform(-1, 1, (steps, *env.action_space.shape)).astype(np.float32)
+    physics, elapsed, raw = 0, 0.0, []
+    try:
+        env.reset(seed=0)
+        for _ in range(rounds):
+            taken, started = world.steps, time.perf_counter()
+            for action in actions:
+                _, _, terminated, truncated, _ = env.step(action)
+                if terminated or truncated:
+                    env.reset()
+            seconds = time.perf_counter() - started
+            physics += world.steps - taken
+            elapsed += seconds
+            raw.append(raw_steps_per_second(world, seconds))
+    finally:
+        env.close()
+    return physics / elapsed, sum(raw) / len(raw), rounds * steps / elapsed
 
 
 class NullEnv(gym.Env):
@@ -131,6 +162,14 @@ def run() -> list[tuple[str, str, str]]:
         target = '>= 2000' if env_id == REACH_ID else '>= 1500'
         rows.append((f'{env_id} env steps/s, 1 process, camera off, random actions',
                      f'{rate:.0f} (load {load()}); {per_cpu:.0f} per CPU second', target))
+    for env_id, steps in SHARE_STEPS.items():
+        loads = [load()]
+        physics, raw, rate = physics_share(env_id, steps, SHARE_ROUNDS)
+        loads.append(load())
+        rows.append((f'{env_id}: env steps/s x physics steps per env step / stepSimulation '
+                     'alone on its world, this run',
+                     f"{rate:.0f} x {physics / rate:.2f} = {physics:,.0f} / {raw:,.0f} = "
+                     f"{physics / raw:.2f} (load {'-'.join(loads)})", '>= 0.8'))
     started = time.process_time()
     success = success_rate(pick_action, EPISODES, DEFAULT_SEED, PICK_ID)
     rows.append((f'{PICK_ID} scripted demonstrator: success over {EPISODES} held-out episodes',

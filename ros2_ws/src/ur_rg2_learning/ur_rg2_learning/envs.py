@@ -262,9 +262,8 @@ class UrRg2Env(gym.Env):
         Here in one physics step: the speed that takes the last target to this one in one step
         is fed forward, as the trajectory controller feeds its path's speed.
         """
-        velocities = (joints - previous) * CONTROL_RATE
-        self.world.set_arm_targets(dict(zip(ARM_JOINTS, joints.tolist())),
-                                   dict(zip(ARM_JOINTS, velocities.tolist())))
+        # Inside the joint limits already (the inverse kinematics keeps to them): one call.
+        self.world.drive_arm(joints.tolist(), ((joints - previous) * CONTROL_RATE).tolist())
         for _ in range(self.substeps):
             self.world.step()
 

@@ -199,18 +199,22 @@ class GripperMixin:
         rest at the end of their travel and the reported speed jitters by several mm/s
         without any motion.
         """
-        positions = [self._p.getJointState(self.robot, self._joint_index[name])[0]
-                     for name in GRIPPER_JOINTS]
+        # The fingers are read only when they are judged: this runs before every step of a
+        # gripper action (and of the environments' wait for the fingers).
         if self._finger_probe is None:
-            self._finger_probe = (self._steps, positions)
+            self._finger_probe = (self._steps, self._finger_positions())
             return False
         steps, before = self._finger_probe
         if (self._steps - steps) * self.dt >= _FINGER_SPEED_WINDOW:
+            positions = self._finger_positions()
             elapsed = (self._steps - steps) * self.dt
             self._finger_moving = any(abs(a - b) / elapsed >= _FINGER_STOPPED_SPEED
                                       for a, b in zip(positions, before))
             self._finger_probe = (self._steps, positions)
         return not self._finger_moving
+
+    def _finger_positions(self) -> list[float]:
+        return [state[0] for state in self._p.getJointStates(self.robot, self._finger_indices)]
 
     def skip_free_finger_travel(self, margin: float = 0.005,
                                 still: float = _BODY_AT_REST_SPEED) -> bool:
@@ -227,7 +231,7 @@ class GripperMixin:
         """
         p = self._p
         fingers = self._finger_indices
-        positions = [state[0] for state in p.getJointStates(self.robot, fingers)]
+        positions = self._finger_positions()
         travel = max(abs(self.gripper_target / 2 - x) for x in positions)
         (left, _), (right, _) = [state[:2] for state in p.getLinkStates(self.robot, fingers)]
         slide = [a - b for a, b in zip(left, right)]

@@ -120,6 +120,11 @@ class SimWorld(SceneMixin, ArmMixin, GripperMixin, ContactsMixin):
         self._p.stepSimulation()
         self._steps += 1
 
+    @property
+    def steps(self) -> int:
+        """Return how many physics steps :meth:`step` has taken."""
+        return self._steps
+
     def joint_states(self) -> JointStateSample:
         """Return the current state of the arm and gripper joints."""
         states = self._p.getJointStates(self.robot, self._indices)

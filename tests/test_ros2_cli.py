@@ -14,7 +14,7 @@ import time
 
 from conftest import next_domain_id, wait_for
 import pytest
-from test_bringup import ROOT
+from test_bringup import ROOT, argument_values
 import yaml
 
 ARM_JOINTS = ['shoulder_pan_joint', 'shoulder_lift_joint', 'elbow_joint', 'wrist_1_joint',
@@ -156,7 +156,9 @@ def test_every_node_runs_with_the_params_file_and_the_launch_arguments_over_it(g
         running = {key: value for key, value in dumped[f'/{name}']['ros__parameters'].items()
                    if not _ROS_OWN.fullmatch(key)}
         expected = dict(graph.params[f'/**/{name}']['ros__parameters'])
+        # The launch arguments given, and the detector, which the launch file sets.
         expected.update({'ur_rg2_sim': {'camera_rate': 15.0},
+                         'ur_rg2_vision': {'detector': argument_values()['detector']},
                          'ur_rg2_viewer': {'port': 0}}.get(name, {}))
         assert running == expected, name
     assert 'Double value is: 0.12' in ros2(env, 'param', 'get', '/ur_rg2_motion', 'lift_height')

@@ -101,7 +101,8 @@ def test_writes_labelled_samples_and_appends(ros_graph, tmp_path):
     labelled, empty = check_labels(out)
     assert labelled >= 5 and empty >= 1
     assert (out / 'data.yaml').read_text() == (
-        f'path: {out}\ntrain: images/train\nval: images/val\nnames: {{0: ball}}\n')
+        f'path: {out}\ntrain: images/train\nval: images/val\nnames: {{0: ball}}\n'
+        'renderer: "the sim\'s renderer parameter: auto"\n')
     contents = {name: (i.read_bytes(), lb.read_bytes()) for name, (i, lb) in first.items()}
 
     # One seed, the same placements: the same labels in another directory.

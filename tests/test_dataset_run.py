@@ -61,7 +61,7 @@ class FakeSim(SimRecord):
         self.add_static(t)
 
     def get_parameters(self, names):
-        return {name: self.params[name] for name in names}
+        return {name: self.params.get(name) for name in names}  # None: not set, as a sim's
 
     def set_parameters(self, values: dict) -> None:
         self.sets.append(dict(values))

@@ -354,9 +354,11 @@ def is_val(index: int, val_fraction: float) -> bool:
 class DatasetWriter:
     """Writes samples into a YOLO data set directory; appends to what is there."""
 
-    def __init__(self, root: str | os.PathLike, val_fraction: float) -> None:
+    def __init__(self, root: str | os.PathLike, val_fraction: float,
+                 renderer: str = '') -> None:
         self.root = Path(root).absolute()
         self.val_fraction = val_fraction
+        self.renderer = renderer  # who drew the frames, recorded in data.yaml
         for kind in ('images', 'labels'):
             for split in SPLITS:
                 (self.root / kind / split).mkdir(parents=True, exist_ok=True)
@@ -374,6 +376,8 @@ class DatasetWriter:
                                  f'{CLASS_ID}: {CLASS_NAME} alone; choose another --out')
         data = (f'path: {self.root}\ntrain: images/train\nval: images/val\n'
                 f'names: {{{CLASS_ID}: {CLASS_NAME}}}\n')
+        if self.renderer:
+            data += f'renderer: {self.renderer!r}\n'
         temporary = write_temporary(str(self.root), 'data.yaml', data.encode())
         try:
             os.replace(temporary, path)

@@ -349,7 +349,9 @@ def run(args: argparse.Namespace, driver) -> int:
     try:
         # The sim first: without one, nothing is created.
         sampler = Sampler(driver, args)
-        writer = DatasetWriter(args.out, args.val_fraction)
+        renderer = driver.get_parameters(('renderer',))['renderer']
+        writer = DatasetWriter(args.out, args.val_fraction,
+                               f"the sim's renderer parameter: {renderer}" if renderer else '')
         if writer.removed_orphans:
             print(f'dataset: removed {writer.removed_orphans} label(s) without an image (left '
                   f'by a killed run)', file=sys.stderr)

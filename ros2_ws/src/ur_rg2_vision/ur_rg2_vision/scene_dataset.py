@@ -14,6 +14,8 @@ import argparse
 import json
 import sys
 
+from ur_rg2_sim.camera import choose_renderer
+
 from ur_rg2_vision.dataset import DatasetWriter, Progress, depth_png
 from ur_rg2_vision.scenes import detector_scenes
 
@@ -27,7 +29,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--val-fraction', type=float, default=0.15)
     parser.add_argument('--progress-every', type=int, default=100)
     args = parser.parse_args(argv)
-    writer = DatasetWriter(args.out, args.val_fraction)
+    renderer = choose_renderer('auto').name
+    if renderer == 'egl':
+        renderer += ' (patterned balls: tiny)'
+    writer = DatasetWriter(args.out, args.val_fraction, renderer)
     progress = Progress(args.count, every=args.progress_every)
     for sample in detector_scenes(args.count, args.seed):
         shot = sample.shot

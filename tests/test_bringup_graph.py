@@ -184,17 +184,19 @@ def pick(controller: int, log_path: Path, positions: list) -> int:
     """Press g until a pick succeeds; return the number of screen lines before that press.
 
     A pick asked before the motion node has the sim's frames is refused at once (a warning
-    on the screen); it is asked again once the next ball position has come.
+    on the screen), and g before keys has found motion's action is refused by keys ('not
+    ready yet: waiting for motion'); it is asked again once the next ball position has come.
     """
+    answers = ('/pick_ball: ', 'not ready yet: ')
     deadline = time.monotonic() + 180.0
     while True:
         before = len(log_path.read_text().splitlines())
         os.write(controller, b'g')
-        wait_for(lambda before=before: any(line.startswith('/pick_ball: ') for line in
+        wait_for(lambda before=before: any(line.startswith(answers) for line in
                                            log_path.read_text().splitlines()[before:]),
                  120.0, "the pick's outcome line")
         added = log_path.read_text().splitlines()[before:]
-        outcome = next(line for line in added if line.startswith('/pick_ball: '))
+        outcome = next(line for line in added if line.startswith(answers))
         if outcome.startswith('/pick_ball: done') or time.monotonic() > deadline:
             return before
         seen = len(positions)
@@ -242,7 +244,8 @@ def test_in_a_terminal_keys_runs_in_the_foreground_and_quitting_stops_all(
         ros_graph, tmp_path, quit_key):
     """The terminal shows keys' lines only; with p, after a pick (g) and a policy episode.
 
-    Their goals end quietly: the nodes' routine lines go to the log file.
+    Their goals end quietly: the nodes' routine lines go to the log file; the episode's
+    outcome is one line of keys'.
     """
     probe = ros_graph.node('probe')
     positions: list[PointStamped] = []
@@ -279,6 +282,8 @@ def test_in_a_terminal_keys_runs_in_the_foreground_and_quitting_stops_all(
                 wait_for(lambda: len(positions) > seen + 6, 30.0, 'the ball seen at its place')
                 before_episode = len(log_path.read_text().splitlines())
                 policy_episode(probe, ros_graph.env, tmp_path / 'policy.log')
+                wait_for(lambda: 'policy episode: ' in log_path.read_text(), 10.0,
+                         "the episode's outcome in the keys terminal")
             os.write(controller, quit_key)
             assert run.wait(timeout=20) == 0, log_path.read_text()
         finally:
@@ -301,12 +306,17 @@ def test_in_a_terminal_keys_runs_in_the_foreground_and_quitting_stops_all(
         assert any(line.startswith('/pick_ball: done: picked the ball') for line in after), (
             screen)
         assert all(line.startswith(('/pick_ball: ', '/pick_ball ... ', '/reset: done',
-                                    'joint mode | ', 'bringup: graph stopped'))
+                                    'joint mode | ', 'policy episode: ', 'ready',
+                                    'bringup: graph stopped'))
                    for line in after), screen
-        # The policy episode, driven from outside the keys terminal, adds none of its lines.
+        # The policy episode, driven from outside the keys terminal, adds its outcome line
+        # (policy/result), none of the policy node's or the controllers' own lines.
         during = screen.splitlines()[before_episode:]
-        assert all(line.startswith(('joint mode | ', 'bringup: graph stopped'))
+        assert all(line.startswith(('joint mode | ', 'policy episode: ', 'bringup: graph stopped'))
                    for line in during), screen
+        outcomes = [line for line in during if line.startswith('policy episode: ')]
+        assert len(outcomes) == 1 and re.match(r'policy episode: (done|FAILED): .*\(\d+\.\d s\)$',
+                                               outcomes[0]), screen
     else:
         assert not re.search(r'^\[(sim|vision|motion|viewer)-\d+\]', screen, re.MULTILINE), (
             screen)

@@ -233,11 +233,12 @@ class PolicyNode(Node):
             if self._episode is not episode:
                 return
             self._episode = None
-        self._driving.publish(Bool(data=False))
-        self._episodes.end(success=reached)
         seconds = time.monotonic() - episode.started
+        # The outcome first: whoever waits for policy/driving to turn false finds it there.
         self._result.publish(String(
             data=f"{'success' if reached else 'failed'}: {outcome} ({seconds:.1f} s)"))
+        self._driving.publish(Bool(data=False))
+        self._episodes.end(success=reached)
         # rclpy refuses two severities from one call site: one call each.
         if reached:
             self.get_logger().info(f'policy episode: {outcome} ({seconds:.1f} s)')

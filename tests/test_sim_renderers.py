@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from ur_rg2_common.contract import ARM_JOINTS
 from ur_rg2_sim.camera import Camera, CameraConfig, RendererError, choose_renderer
+from ur_rg2_sim.render_thread import DropWatch
 from ur_rg2_sim.simulation import NS, Schedule, SimulationLoop
 from ur_rg2_sim.world import SimWorld, WorldConfig
 
@@ -164,3 +165,14 @@ def test_a_stalled_render_drops_frames_not_joint_states():
         camera.release.set()
         assert loop.stop()
         world.close()
+
+
+def test_the_drop_warning_comes_once_and_only_when_drops_last():
+    watch = DropWatch(window_s=5.0, share=0.5)
+    period = NS // 30
+    # One frame in ten dropped for a minute: never sustained.
+    assert not any(watch.dropped(i * 10 * period, 30.0) for i in range(180))
+    # Then every other frame: told once, after 5 s of it.
+    start = 180 * 10 * period
+    told = [watch.dropped(start + i * 2 * period, 30.0) for i in range(300)]
+    assert told.count(True) == 1 and 60 <= told.index(True) <= 76

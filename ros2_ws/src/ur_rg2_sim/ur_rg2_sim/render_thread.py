@@ -7,6 +7,7 @@ counted, so a slow machine loses camera frames before it loses physics steps or 
 Plain Python, no ROS.
 """
 
+from collections import deque
 from collections.abc import Callable
 import threading
 from typing import Optional
@@ -16,6 +17,31 @@ from ur_rg2_sim.gl_renderer import release_thread_context
 from ur_rg2_sim.render_scene import SceneSnapshot
 
 Deliver = Callable[[int, Camera, Frame], None]
+
+
+class DropWatch:
+    """Tells a camera that drops a frame now and then from one that cannot keep its rate.
+
+    :meth:`dropped` answers True once: when the frames dropped over the last ``window_s`` of
+    simulation time reach ``share`` of the frames due in it.
+    """
+
+    def __init__(self, window_s: float = 5.0, share: float = 0.5) -> None:
+        self._window_ns = round(window_s * 1e9)
+        self._share = share
+        self._stamps: deque[int] = deque()
+        self.told = False
+
+    def dropped(self, stamp_ns: int, rate_hz: float) -> bool:
+        """Count a dropped frame; return True the first time the drops are sustained."""
+        self._stamps.append(stamp_ns)
+        while self._stamps[0] <= stamp_ns - self._window_ns:
+            self._stamps.popleft()
+        sustained = len(self._stamps) >= self._share * rate_hz * self._window_ns / 1e9
+        if sustained and not self.told:
+            self.told = True
+            return True
+        return False
 
 
 class RenderThread:

@@ -26,6 +26,7 @@ from ur_rg2_sim.frame_publisher import FramePublisher
 from ur_rg2_sim.frames import OPTICAL_FRAME, load_frame_tree, robot_description
 from ur_rg2_sim.outputs import camera_info, degrees_list, gripper_outcome, joint_state, stamp
 from ur_rg2_sim.planning import CollisionModel
+from ur_rg2_sim.render_thread import DropWatch
 from ur_rg2_sim.robot_model import RobotModelError
 from ur_rg2_sim.safety import Homing, ProtectiveStop, describe
 from ur_rg2_sim.serialized import SerializedPublisher
@@ -86,6 +87,7 @@ class SimNode(Node):
             self.create_service(Trigger, name, callback, callback_group=self.blocking_group)
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
+        self._drops = DropWatch()
         camera = self._make_camera(s)
         if camera is not None:
             self.get_logger().info(f'camera rendered by {camera.renderer.reason}')
@@ -145,12 +147,16 @@ class SimNode(Node):
             self._frames.publish(stamp_ns, sample.positions, world.body_pose(world.ball))
 
     def frame_dropped(self, stamp_ns: int, dropped: int) -> None:
-        """Warn once that rendering cannot keep up; the summary at exit gives the count."""
+        """Say that rendering cannot keep up: at the first drop, and once if it lasts."""
         if dropped == 1:
-            self.get_logger().warning(
+            self.get_logger().info(
                 f'camera frame at {stamp_ns / 1e9:.3f} s dropped: the last frame was still being '
-                'drawn. The camera drops frames while rendering cannot keep up; physics and '
-                'joint_states keep their rates (the count is in the summary at exit)')
+                'drawn. Physics and joint_states keep their rates; the count is in the summary '
+                'at exit')
+        if self._drops.dropped(stamp_ns, self.settings.camera_rate):
+            self.get_logger().warning(
+                f'the camera drops half its frames or more ({dropped} so far): this machine '
+                'cannot render at camera_rate; lower camera_rate or the image size')
 
     def frame(self, stamp_ns: int, camera: Camera, frame: Frame) -> None:
         """Publish colour, depth and their camera_info with one header."""

@@ -86,6 +86,7 @@ class SimulationLoop:
         self.step_ns = round(world.dt * NS)
         self.sim_time_ns = 0
         self.started_at: Optional[float] = None  # time.monotonic() when the thread started
+        self.ended_at: Optional[float] = None  # and when it ended
         self.error: Optional[BaseException] = None
         # Called with (world, sim_time_ns) before every physics step (the controllers).
         self.step_hooks: list[Callable[[SimWorld, int], None]] = []
@@ -123,8 +124,12 @@ class SimulationLoop:
         return not self._thread.is_alive()
 
     def summary(self) -> str:
-        """Return how much simulation time ran, in how much wall time, and at what speed."""
-        wall = time.monotonic() - self.started_at if self.started_at is not None else 0.0
+        """Return how much simulation time ran, in how much wall time, and at what speed.
+
+        The wall time is the thread's run, up to now or to its end (not the node's teardown).
+        """
+        end = self.ended_at if self.ended_at is not None else time.monotonic()
+        wall = end - self.started_at if self.started_at is not None else 0.0
         sim = self.sim_time_ns / NS
         steps = self.sim_time_ns // self.step_ns
         if wall <= 0:
@@ -190,6 +195,7 @@ class SimulationLoop:
         except BaseException as error:  # noqa: B036 - reported to the node, which exits
             self.error = error
         finally:
+            self.ended_at = time.monotonic()
             self._finished.set()
             self._fail_pending(RuntimeError('the simulation stopped'))
 

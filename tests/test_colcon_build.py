@@ -175,6 +175,16 @@ def test_install_carries_the_shipped_policy(workspace):
     assert env_id == 'UrRg2Reach-v0'
 
 
+def test_install_carries_the_arm_meshes(workspace):
+    """robot_description's package://ur_rg2_sim/meshes/... resolve in the install."""
+    meshes = workspace / 'install' / SIM / 'share' / SIM / 'meshes'
+    assert (meshes / 'PROVENANCE.md').is_file()
+    for model in ('ur3', 'ur5'):
+        assert sorted(file.name for file in (meshes / model).glob('*.obj')) == sorted(
+            file.name for file in (SRC / SIM / 'meshes' / model).glob('*.obj')), model
+    assert len(list(meshes.glob('*/*.obj'))) == 14
+
+
 def test_installed_sim_publishes_joint_states(workspace, ros_graph, tmp_path):
     received: list[JointState] = []
     ros_graph.node('listener').create_subscription(

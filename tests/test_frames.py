@@ -6,6 +6,7 @@ from types import SimpleNamespace
 from urllib.parse import urlparse
 import xml.etree.ElementTree as ET
 
+from ament_index_python.packages import get_package_share_directory
 import numpy as np
 import pybullet
 import pytest
@@ -21,7 +22,7 @@ from ur_rg2_sim.frames import (
     parse_joints,
     robot_description,
 )
-from ur_rg2_sim.robot_model import ROBOT_MODELS
+from ur_rg2_sim.robot_model import ROBOT_MODELS, convert_meshes
 from ur_rg2_sim.world import SimWorld, WorldConfig
 import yaml
 
@@ -120,13 +121,33 @@ def test_quaternion_from_matrix_round_trips():
         assert np.allclose(back, q * np.sign(q[3]), atol=1e-9)
 
 
-def test_robot_description_meshes_resolve(world):
+def test_robot_description_names_the_installed_meshes_pybullet_draws(world):
     description = robot_description(world.urdf)
-    meshes = [m.get('filename') for m in ET.fromstring(description).iter('mesh')]
-    assert meshes
+    meshes = {m.get('filename') for m in ET.fromstring(description).iter('mesh')}
+    share = Path(get_package_share_directory('ur_rg2_sim'))
+    model = world.config.robot_model
+    # package:// URIs of the package's share directory, which outlive the sim, one per link.
+    assert meshes == {f'package://ur_rg2_sim/meshes/{model}/{file.name}'
+                      for file in (share / 'meshes' / model).glob('*.obj')}
+    assert len(meshes) == 7
     for uri in meshes:
-        parsed = urlparse(uri)
-        assert parsed.scheme == 'file' and Path(parsed.path).is_file(), uri
+        assert (share / urlparse(uri).path.lstrip('/')).is_file(), uri
+    # pybullet draws those same files (the camera renderers read the paths it reports).
+    drawn = {shape[4].decode() for shape in pybullet.getVisualShapeData(
+        world.robot, physicsClientId=world.client) if shape[4]}
+    assert {Path(path).relative_to(share).as_posix() for path in drawn} == {
+        urlparse(uri).path.lstrip('/') for uri in meshes}
+
+
+@pytest.mark.parametrize('model', ROBOT_MODELS)
+def test_shipped_meshes_are_the_converted_collision_meshes(model, tmp_path):
+    """The files ur_rg2_sim ships are what scripts/robot_meshes.py writes (PROVENANCE.md)."""
+    written = convert_meshes(model, tmp_path)
+    shipped = Path(get_package_share_directory('ur_rg2_sim')) / 'meshes' / model
+    assert sorted(file.name for file in shipped.glob('*.obj')) == sorted(
+        file.name for file in written)
+    for file in written:
+        assert (shipped / file.name).read_bytes() == file.read_bytes(), file.name
 
 
 @pytest.mark.parametrize('urdf, reason', [

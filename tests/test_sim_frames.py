@@ -6,6 +6,7 @@ import signal
 from urllib.parse import urlparse
 import xml.etree.ElementTree as ET
 
+from ament_index_python.packages import get_package_share_directory
 from conftest import start_sim, wait_for
 from geometry_msgs.msg import PoseStamped
 import numpy as np
@@ -126,8 +127,10 @@ def test_across_processes_ur3_tree_and_robot_description(ros_graph):
         assert {'world', 'base_link', 'base', 'tool0', 'rg2_tcp', 'wrist_3_link'} <= links
         meshes = [mesh.get('filename') for mesh in ET.fromstring(description).iter('mesh')]
         assert meshes
-        for uri in meshes:
-            assert urlparse(uri).scheme == 'file' and Path(urlparse(uri).path).is_file(), uri
+        share = Path(get_package_share_directory('ur_rg2_sim'))
+        for uri in meshes:  # the installed package's files, found through the ament index
+            assert uri.startswith('package://ur_rg2_sim/meshes/ur3/'), uri
+            assert (share / urlparse(uri).path.lstrip('/')).is_file(), uri
         tree = probe.tree_at(probe.latest('joint_states'))
         frames = tree.frames()
         assert frames == links | {'camera_link', 'camera_color_optical_frame'}

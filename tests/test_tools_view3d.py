@@ -2,10 +2,13 @@
 
 import json
 import os
+from pathlib import Path
 import urllib.error
 import urllib.request
+import xml.etree.ElementTree as ET
 
-from conftest import start_sim, wait_for
+from ament_index_python.packages import get_package_share_directory
+from conftest import RosGraph, start_sim, wait_for
 import cv2
 import numpy as np
 import pytest
@@ -13,6 +16,7 @@ from rclpy.parameter import Parameter
 from selenium.webdriver.common.by import By
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
+from test_ros2_cli import Launched
 from test_viewer_browser import browser  # noqa: F401 - the headless Chromium fixture
 from ur_rg2_common.contract import LATCHED_QOS
 from ur_rg2_tools.view3d_node import View3dNode
@@ -156,3 +160,53 @@ def test_page_draws_the_robot_and_follows_the_arm(ros_graph, browser):  # noqa: 
         wait_for(lambda: browser.execute_script('return window.view3d.clouds') > 2, 30,
                  'a point cloud of the moved arm')
         browser.save_screenshot(screenshot)
+
+
+def test_a_replay_after_the_sim_stopped_draws_the_robots_meshes(ros_graph, tmp_path,
+                                                               browser):  # noqa: F811
+    """A recording of a running sim, replayed once that sim is gone, on another domain."""
+    path = tmp_path / 'run.mcap'
+    topics = ['/robot_description', '/joint_states']
+    sim_graph = RosGraph()
+    try:
+        start_sim(sim_graph, camera_rate=0.0)
+        states = []
+        sim_graph.node('witness').create_subscription(JointState, 'joint_states',
+                                                      states.append, 10)
+        recorder = Launched(['ros2', 'run', 'ur_rg2_tools', 'record', '-o', str(path),
+                             *topics], sim_graph.env, tmp_path / 'record.log')
+        try:
+            wait_for(lambda: recorder.output.count('recording /') == len(topics) + 1
+                     or recorder.process.poll() is not None, 120,
+                     'the recorder to subscribe to its topics')
+            seen = len(states)
+            wait_for(lambda: len(states) > seen + 20, 60, 'joint states while recording')
+            recorder.ctrl_c()
+            assert recorder.wait(30) == 0, recorder.output
+        finally:
+            recorder.kill()
+    finally:
+        sim_graph.shutdown()  # the sim is gone, with its temporary files
+
+    view = ros_graph.add(View3dNode(context=ros_graph.context, parameter_overrides=[
+        Parameter('port', value=0)]))
+    player = Launched(['ros2', 'run', 'ur_rg2_tools', 'replay', str(path)], ros_graph.env,
+                      tmp_path / 'replay.log')
+    try:
+        assert player.wait(120) == 0, player.output  # it ends with the recording
+    finally:
+        player.kill()
+    wait_for(view.scene.description, 10, 'the replayed robot_description')
+    status, urdf = get(view.url + 'robot.urdf')
+    assert status == 200
+    # Every mesh URL the page fetches is served: the UR5's seven shipped meshes.
+    urls = {mesh.get('filename') for mesh in ET.fromstring(urdf).iter('mesh')}
+    served = {get(view.url + url) for url in urls}
+    shipped = Path(get_package_share_directory('ur_rg2_sim')) / 'meshes' / 'ur5'
+    assert served == {(200, file.read_bytes()) for file in shipped.glob('*.obj')}
+    assert len(urls) == 7
+
+    browser.get(view.url)
+    wait_for(lambda: (s := browser.execute_script('return window.view3d'))
+             and s['robotLoaded'] and s['meshesLoaded'] >= 7, 90,
+             'the replayed robot with its 7 arm meshes in the page')

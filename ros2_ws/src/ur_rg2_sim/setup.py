@@ -1,3 +1,5 @@
+from glob import glob
+
 from setuptools import find_packages, setup
 
 package_name = 'ur_rg2_sim'
@@ -9,6 +11,10 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
+        # The arm's meshes, package://ur_rg2_sim/meshes/MODEL/LINK.obj (meshes/PROVENANCE.md).
+        ('share/' + package_name + '/meshes', ['meshes/PROVENANCE.md']),
+        ('share/' + package_name + '/meshes/ur3', glob('meshes/ur3/*.obj')),
+        ('share/' + package_name + '/meshes/ur5', glob('meshes/ur5/*.obj')),
     ],
     install_requires=['setuptools'],
     zip_safe=True,

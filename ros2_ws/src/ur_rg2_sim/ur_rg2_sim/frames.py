@@ -27,6 +27,8 @@ from ur_rg2_common.camera_pose import optical_rotation
 from ur_rg2_common.contract import WORLD_FRAME
 from ur_rg2_common.tf_buffer import quaternion_from_matrix
 
+from ur_rg2_sim.robot_model import package_uri
+
 Vector = tuple[float, float, float]
 Quaternion = tuple[float, float, float, float]  # x, y, z, w
 Transform = tuple[Vector, Quaternion]
@@ -177,12 +179,17 @@ def load_frame_tree(world, urdf: Path) -> FrameTree:
 
 
 def robot_description(urdf: Path) -> str:
-    """Return the URDF text with every mesh filename an absolute ``file://`` URI."""
+    """Return the URDF text with every mesh filename a URI, as ROS tools read them.
+
+    The sim's shipped meshes become ``package://ur_rg2_sim/...`` URIs (found through the ament
+    index wherever the package is installed, after the sim has stopped); any other file its
+    absolute ``file://`` URI.
+    """
     root = ET.parse(urdf).getroot()
     for mesh in root.iter('mesh'):
         filename = mesh.get('filename', '')
         if '://' not in filename:
-            mesh.set('filename', (urdf.parent / filename).resolve().as_uri())
+            mesh.set('filename', package_uri(urdf.parent / filename))
     return ET.tostring(root, encoding='unicode')
 
 

@@ -3,12 +3,15 @@
 The UR kinematics, limits and meshes are the maintained `example-robot-data` ones. Two changes
 are made for the simulator:
 
-* ``package://`` mesh paths are resolved to absolute paths, which pybullet needs.
 * Each link's visual is the link's collision mesh (the same real UR shape, far fewer
   triangles than the COLLADA visual) with a flat colour: pybullet's CPU renderer spends its
   time per triangle, and the COLLADA meshes cost ~37 ms per 640x480 frame against ~13 ms.
   The STL files carry zero facet normals, which render black, so they are converted to OBJ
-  with computed normals.
+  with computed normals (:func:`convert_meshes`).
+* Those OBJ files ship in this package's share directory, ``meshes/MODEL/LINK.obj``
+  (``scripts/robot_meshes.py`` writes them; ``meshes/PROVENANCE.md``), so a URDF names them as
+  ``package://ur_rg2_sim/meshes/...`` resources (:func:`package_uri`), which outlive the sim.
+  The URDF written for pybullet names the installed files by absolute path, which it needs.
 
 The RG2 is modelled from its datasheet: 0-110 mm stroke, 3-40 N grip force, two parallel
 fingers. Its linkage is simplified to two prismatic fingers moving symmetrically, each with a
@@ -20,10 +23,13 @@ from importlib import metadata
 from pathlib import Path
 import xml.etree.ElementTree as ET
 
+from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
 import numpy as np
 from ur_rg2_common.contract import RG2_MAX_FORCE, RG2_MAX_OPENING
 
 ROBOT_MODELS = ('ur5', 'ur3')
+PACKAGE = 'ur_rg2_sim'
+MESHES = 'meshes'  # the arm's OBJ files in the share directory: meshes/MODEL/LINK.obj
 
 FLANGE_LINK = 'tool0'
 TCP_LINK = 'rg2_tcp'
@@ -76,25 +82,56 @@ def example_robot_data_share() -> Path:
     raise RobotModelError('example-robot-data is installed but has no ur_description URDFs')
 
 
-def write_robot_urdf(robot_model: str, directory: Path) -> Path:
-    """Write the URDF of arm ``robot_model`` with the RG2, and its meshes, to ``directory``."""
-    if robot_model not in ROBOT_MODELS:
+def package_share() -> Path:
+    """Return this package's installed share directory (the ament index's), or raise."""
+    try:
+        return Path(get_package_share_directory(PACKAGE))
+    except (PackageNotFoundError, OSError) as exc:
         raise RobotModelError(
-            f"robot_model must be one of {', '.join(ROBOT_MODELS)}, got {robot_model!r}")
-    share = example_robot_data_share()
-    source = share / 'robots' / 'ur_description' / 'urdf' / f'{robot_model}_robot.urdf'
-    root = ET.parse(source).getroot()
-    for element in list(root):
-        # Simulator-irrelevant sections (gazebo plugins, transmissions) only slow the parser.
-        if element.tag in ('gazebo', 'transmission'):
-            root.remove(element)
+            f'{PACKAGE} is not in the ament index, so its meshes are not found: source '
+            'scripts/env.sh (or a colcon install/setup.bash) first') from exc
+
+
+def package_uri(path: Path) -> str:
+    """Return the ``package://`` URI of a file of this package's share directory.
+
+    Any other file is named by its absolute ``file://`` URI.
+    """
+    share = package_share()
+    if path.is_relative_to(share):
+        return f'package://{PACKAGE}/{path.relative_to(share).as_posix()}'
+    return path.resolve().as_uri()
+
+
+def write_robot_urdf(robot_model: str, directory: Path) -> Path:
+    """Write the URDF of arm ``robot_model`` with the RG2 to ``directory``, for pybullet.
+
+    Its meshes are the installed ones of this package's share directory, by absolute path.
+    """
+    root, _ = _source_urdf(robot_model)
+    meshes = package_share() / MESHES / robot_model
     for link in root.iter('link'):
-        _use_collision_mesh_as_visual(link, share, directory)
+        _use_collision_mesh_as_visual(link, meshes)
     for element in _rg2_elements():
         root.append(element)
     urdf = directory / f'{robot_model}_rg2.urdf'
     ET.ElementTree(root).write(urdf, encoding='unicode')
     return urdf
+
+
+def convert_meshes(robot_model: str, directory: Path) -> list[Path]:
+    """Write each arm link's collision mesh as ``directory/LINK.obj``; return the files.
+
+    The files this package ships in ``meshes/MODEL/`` (``scripts/robot_meshes.py``).
+    """
+    root, share = _source_urdf(robot_model)
+    written = []
+    for link in root.iter('link'):
+        mesh = link.find('collision/geometry/mesh')
+        if mesh is not None and link.find('visual') is not None:
+            written.append(directory / f"{link.get('name')}.obj")
+            stl_to_obj(Path(_resolve(mesh.get('filename'), share)), written[-1])
+    return written
 
 
 def joint_limits(urdf: Path) -> dict[str, JointLimit]:
@@ -109,6 +146,23 @@ def joint_limits(urdf: Path) -> dict[str, JointLimit]:
     return limits
 
 
+def _source_urdf(robot_model: str) -> tuple[ET.Element, Path]:
+    """Return example-robot-data's URDF of ``robot_model``, and that package's share.
+
+    Gazebo plugins and transmissions, which only slow the parser, are left out.
+    """
+    if robot_model not in ROBOT_MODELS:
+        raise RobotModelError(
+            f"robot_model must be one of {', '.join(ROBOT_MODELS)}, got {robot_model!r}")
+    share = example_robot_data_share()
+    source = share / 'robots' / 'ur_description' / 'urdf' / f'{robot_model}_robot.urdf'
+    root = ET.parse(source).getroot()
+    for element in list(root):
+        if element.tag in ('gazebo', 'transmission'):
+            root.remove(element)
+    return root, share
+
+
 def _resolve(filename: str, share: Path) -> str:
     prefix = 'package://example-robot-data/'
     if filename.startswith(prefix):
@@ -116,14 +170,14 @@ def _resolve(filename: str, share: Path) -> str:
     return filename
 
 
-def _use_collision_mesh_as_visual(link: ET.Element, share: Path, directory: Path) -> None:
+def _use_collision_mesh_as_visual(link: ET.Element, meshes: Path) -> None:
     collision_mesh = link.find('collision/geometry/mesh')
     visual = link.find('visual')
     if collision_mesh is None or visual is None:
         return
-    stl = Path(_resolve(collision_mesh.get('filename'), share))
-    obj = directory / f"{link.get('name')}.obj"
-    stl_to_obj(stl, obj)
+    obj = meshes / f"{link.get('name')}.obj"
+    if not obj.is_file():
+        raise RobotModelError(f'{obj} is missing: the package is installed without its meshes')
     collision_mesh.set('filename', str(obj))
     visual.find('geometry/mesh').set('filename', str(obj))
     colour = _JOINT_COLOUR if link.get('name') in _JOINT_LINKS else _ARM_COLOUR

@@ -20,18 +20,13 @@ from ur_rg2_sim.render_scene import GeometryKey, SceneSnapshot, shape_mesh
 _BODY_VERTEX = """
 #version 330
 uniform mat4 model;
-uniform mat4 view;
-uniform mat4 projection;
+uniform mat4 view_projection;
 in vec3 in_position;
 in vec3 in_normal;
 out vec3 world_normal;
-out float optical_z;
 void main() {
-    vec4 world = model * vec4(in_position, 1.0);
     world_normal = mat3(model) * in_normal;
-    vec4 optical = view * world;
-    optical_z = optical.z;
-    gl_Position = projection * optical;
+    gl_Position = view_projection * (model * vec4(in_position, 1.0));
 }
 """
 
@@ -42,72 +37,41 @@ _BODY_FRAGMENT = """
 uniform vec4 color;
 uniform vec3 light;
 in vec3 world_normal;
-in float optical_z;
-layout(location = 0) out vec4 out_color;
-layout(location = 1) out float out_depth;
+out vec4 out_color;
 void main() {
     vec3 n = normalize(world_normal);
     vec3 reflected = normalize(n * (dot(n, light) * 2.0) - light);
     float specular = pow(max(reflected.z, 0.0), 2.0);
     float diffuse = max(0.0, dot(n, light));
     float intensity = 0.6 + min(diffuse * 0.35 + specular * 0.05, 0.4);
-    vec3 truncated = floor(floor(255.0 * intensity) * color.rgb);
-    out_color = vec4(truncated / 255.0, 1.0);
-    out_depth = optical_z;
+    out_color = vec4(floor(floor(255.0 * intensity) * color.rgb) / 255.0, 1.0);
 }
 """
 
 # The floor plane z = 0 as the camera's own floor model computes it (camera.py): tiles of
-# two colours, one Lambert shade, truncated to 8 bits.
+# two colours, one Lambert shade, truncated to 8 bits. Tile coordinates come from the vertex
+# shader: the less a fragment computes, the less llvmpipe spends on the screenful of floor.
 _FLOOR_VERTEX = """
 #version 330
-uniform mat4 view;
-uniform mat4 projection;
+uniform mat4 view_projection;
+uniform float per_tile;
 in vec2 in_xy;
-out vec2 world_xy;
-out float optical_z;
+out vec2 tile_xy;
 void main() {
-    world_xy = in_xy;
-    vec4 optical = view * vec4(in_xy, 0.0, 1.0);
-    optical_z = optical.z;
-    gl_Position = projection * optical;
+    tile_xy = in_xy * per_tile;
+    gl_Position = view_projection * vec4(in_xy, 0.0, 1.0);
 }
 """
 
 _FLOOR_FRAGMENT = """
 #version 330
 uniform vec3 tile_colors[2];
-uniform float tile_size;
-in vec2 world_xy;
-in float optical_z;
-layout(location = 0) out vec4 out_color;
-layout(location = 1) out float out_depth;
+in vec2 tile_xy;
+out vec4 out_color;
 void main() {
-    vec2 tile = floor(world_xy / tile_size);
-    int parity = int(mod(tile.x + tile.y, 2.0));
-    out_color = vec4(tile_colors[parity] / 255.0, 1.0);
-    out_depth = optical_z;
-}
-"""
-
-# What no surface covers: the background colour at no depth (+inf), drawn on the far plane.
-_BACKGROUND_VERTEX = """
-#version 330
-in vec2 in_corner;
-void main() {
-    gl_Position = vec4(in_corner, 1.0, 1.0);
-}
-"""
-
-_BACKGROUND_FRAGMENT = """
-#version 330
-uniform vec3 background;
-uniform float no_depth;
-layout(location = 0) out vec4 out_color;
-layout(location = 1) out float out_depth;
-void main() {
-    out_color = vec4(background / 255.0, 1.0);
-    out_depth = no_depth;
+    vec2 tile = floor(tile_xy);
+    float parity = tile.x + tile.y - 2.0 * floor(0.5 * (tile.x + tile.y));
+    out_color = vec4(mix(tile_colors[0], tile_colors[1], parity) / 255.0, 1.0);
 }
 """
 
@@ -162,6 +126,7 @@ class GlRenderer:
 
     ``k`` is the 3x3 intrinsic matrix in the camera model's convention (pixel ``i`` is at
     coordinate ``i``); ``world_to_optical`` the 4x4 view transform; colours are 8-bit RGB.
+    Meshes must wind counter-clockwise seen from outside (back faces are culled).
     """
 
     def __init__(self, context, width: int, height: int, k: np.ndarray,
@@ -171,69 +136,78 @@ class GlRenderer:
         self.width, self.height = width, height
         self._body = ctx.program(vertex_shader=_BODY_VERTEX, fragment_shader=_BODY_FRAGMENT)
         self._floor = ctx.program(vertex_shader=_FLOOR_VERTEX, fragment_shader=_FLOOR_FRAGMENT)
-        self._background = ctx.program(vertex_shader=_BACKGROUND_VERTEX,
-                                       fragment_shader=_BACKGROUND_FRAGMENT)
         near, far = clip
         a, b = (far + near) / (far - near), -2 * far * near / (far - near)
+        # The depth buffer's d (0-1) back to the optical z: z = (B / 2) / (d - (1 + A) / 2).
+        self._depth_map = (np.float32((1 + a) / 2), np.float32(b / 2))
         # Optical frame to clip space with pixel i's centre (window i + 0.5) on coordinate i;
-        # image row v is window row v, so the read-back rows come top first.
+        # image row v is window row v, so the read-back rows come top first (and a face
+        # counter-clockwise seen from outside is clockwise on the window).
         fx, fy, cx, cy = k[0, 0], k[1, 1], k[0, 2], k[1, 2]
         projection = np.array([
             [2 * fx / width, 0, 2 * (cx + 0.5) / width - 1, 0],
             [0, 2 * fy / height, 2 * (cy + 0.5) / height - 1, 0],
             [0, 0, a, b],
-            [0, 0, 1, 0]]).T.astype('f4').tobytes()
+            [0, 0, 1, 0]])
         view = np.asarray(world_to_optical, dtype=float)
+        view_projection = (projection @ view).T.astype('f4').tobytes()
         for program in (self._body, self._floor):
-            program['projection'].write(projection)
-            program['view'].write(view.T.astype('f4').tobytes())
+            program['view_projection'].write(view_projection)
         light = np.asarray(light_direction, dtype=float)
         self._body['light'].value = tuple(light / np.linalg.norm(light))
         self._floor['tile_colors'].value = [tuple(float(c) for c in color)
                                             for color in floor.tile_colors]
-        self._floor['tile_size'].value = floor.tile_size
-        self._background['background'].value = tuple(float(c) for c in floor.background)
-        self._background['no_depth'].value = float('inf')
+        self._floor['per_tile'].value = 1.0 / floor.tile_size
+        background = tuple(float(c) / 255 for c in floor.background)
         # A floor square around the camera wider than the far clip: the clip cuts its edge.
         centre = np.linalg.inv(view)[:2, 3]
         corners = (centre + 2 * far * np.array([[-1, -1], [1, -1], [1, 1], [-1, -1], [1, 1],
                                                 [-1, 1]])).astype('f4')
-        screen = np.array([[-1, -1], [3, -1], [-1, 3]], dtype='f4')
-        self._buffers = [ctx.buffer(corners.tobytes()), ctx.buffer(screen.tobytes())]
-        self._floor_vao = ctx.vertex_array(self._floor, [(self._buffers[0], '2f', 'in_xy')])
-        self._background_vao = ctx.vertex_array(self._background,
-                                                [(self._buffers[1], '2f', 'in_corner')])
-        self._fbo = ctx.framebuffer(
-            [ctx.renderbuffer((width, height), 4), ctx.renderbuffer((width, height), 1,
-                                                                    dtype='f4')],
-            ctx.depth_renderbuffer((width, height)))
+        floor_corners = ctx.buffer(corners.tobytes())
+        floor_vao = ctx.vertex_array(self._floor, [(floor_corners, '2f', 'in_xy')])
+        self._fbo, self._floor_fbo = (
+            ctx.framebuffer([ctx.renderbuffer((width, height), 4)],
+                            ctx.depth_renderbuffer((width, height))) for _ in range(2))
+        # The floor and background never change for a camera: drawn once, copied each frame
+        # with their depth (a copy costs a twentieth of drawing them).
+        self._floor_fbo.use()
+        self._floor_fbo.clear(*background, 1.0, depth=1.0)
+        ctx.enable(ctx.DEPTH_TEST)
+        ctx.disable(ctx.CULL_FACE)
+        ctx.depth_func = '<'
+        floor_vao.render()
         self._rgba = np.empty((height, width, 4), dtype=np.uint8)
         self._meshes: dict[GeometryKey, object] = {}
-        self._resources = [*self._buffers, self._fbo, *self._fbo.color_attachments,
-                           self._fbo.depth_attachment, self._floor_vao, self._background_vao,
-                           self._body, self._floor, self._background]
+        self._resources = [
+            self._body, self._floor, floor_vao, floor_corners,
+            *(item for fbo in (self._fbo, self._floor_fbo)
+              for item in (fbo, *fbo.color_attachments, fbo.depth_attachment))]
 
     def render(self, snapshot: SceneSnapshot) -> tuple[np.ndarray, np.ndarray]:
         """Return colour (H, W, 3) uint8 and depth (H, W) float32 metres (+inf: no return)."""
         ctx = self.ctx
+        ctx.copy_framebuffer(self._fbo, self._floor_fbo)
         self._fbo.use()
-        self._fbo.clear(depth=1.0)
-        ctx.enable(ctx.DEPTH_TEST)
-        # Front to back, so that the depth test spares the floor's hidden pixels.
+        ctx.enable(ctx.DEPTH_TEST | ctx.CULL_FACE)
+        ctx.front_face = 'cw'
         ctx.depth_func = '<'
-        model = self._body['model']
-        color = self._body['color']
-        for key, pose, rgba in zip(snapshot.keys, snapshot.poses, snapshot.colors):
-            model.write(pose.T.tobytes())
-            color.value = tuple(rgba)
+        model, color = self._body['model'], self._body['color']
+        # Column-major, as OpenGL reads a mat4: each pose transposed, all in one buffer.
+        poses = snapshot.poses.transpose(0, 2, 1).tobytes()
+        colors = snapshot.colors.tobytes()
+        for i, key in enumerate(snapshot.keys):
+            model.write(poses[64 * i:64 * i + 64])
+            color.write(colors[16 * i:16 * i + 16])
             self._vertex_array(key).render()
-        self._floor_vao.render()
-        ctx.depth_func = '<='
-        self._background_vao.render(vertices=3)
         # RGBA reads back as stored; RGB would be repacked pixel by pixel, as numpy would.
         self._fbo.read_into(self._rgba, components=4, attachment=0, alignment=1)
         depth = np.empty((self.height, self.width), dtype=np.float32)
-        self._fbo.read_into(depth, components=1, attachment=1, dtype='f4')
+        self._fbo.read_into(depth, attachment=-1, dtype='f4')
+        no_return = depth >= 1.0
+        middle, half_b = self._depth_map
+        depth -= middle
+        np.divide(half_b, depth, out=depth)
+        depth[no_return] = np.inf
         return cv2.cvtColor(self._rgba, cv2.COLOR_RGBA2RGB), depth
 
     def release(self) -> None:

@@ -39,51 +39,102 @@ def read_snapshot(client: int) -> SceneSnapshot:
     Shapes and colours are read afresh each time (some 20 microseconds for the sim's world),
     so a body added, removed or repainted shows in the next frame.
     """
-    keys, poses, colors, textured = [], [], [], False
+    keys: list[GeometryKey] = []
+    poses, colors, textured = [], [], False
     for index in range(pybullet.getNumBodies(physicsClientId=client)):
         body = pybullet.getBodyUniqueId(index, physicsClientId=client)
-        shapes = pybullet.getVisualShapeData(body, physicsClientId=client)
-        if not shapes:
+        shapes = _body_shapes(tuple(pybullet.getVisualShapeData(body, physicsClientId=client)))
+        if not shapes.keys:
             continue
-        frames = {-1: _matrix(*pybullet.getBasePositionAndOrientation(
-            body, physicsClientId=client))}
+        base = pybullet.getBasePositionAndOrientation(body, physicsClientId=client)
+        frames = [base]
         links = pybullet.getNumJoints(body, physicsClientId=client)
         if links:
             states = pybullet.getLinkStates(body, list(range(links)), physicsClientId=client)
-            frames.update((link, _matrix(state[4], state[5]))  # the URDF link frame
-                          for link, state in enumerate(states))
-        for _, link, kind, dimensions, filename, position, orientation, rgba, *rest in shapes:
-            if kind == pybullet.GEOM_PLANE:
-                continue  # the floor: the camera draws it itself
-            textured |= bool(rest) and rest[0] >= 0
-            keys.append((kind, tuple(round(d, 9) for d in dimensions),
-                         filename.decode() if isinstance(filename, bytes) else filename))
-            poses.append(frames[link] @ _matrix(position, orientation))
-            colors.append(rgba)
-    return SceneSnapshot(tuple(keys), np.asarray(poses, dtype=np.float32).reshape(-1, 4, 4),
-                         np.asarray(colors, dtype=np.float32).reshape(-1, 4), textured)
+            frames += [(state[4], state[5]) for state in states]  # the URDF link frames
+        # Link -1 (the base) is row 0.
+        world = _matrices(frames)[shapes.links + 1]
+        keys += shapes.keys
+        poses.append(world @ shapes.local)
+        colors.append(shapes.colors)
+        textured |= shapes.textured
+    if not keys:
+        return SceneSnapshot((), np.empty((0, 4, 4), np.float32), np.empty((0, 4), np.float32))
+    return SceneSnapshot(tuple(keys), np.concatenate(poses).astype(np.float32),
+                         np.concatenate(colors), textured)
 
 
-def _matrix(position, orientation) -> np.ndarray:
-    matrix = np.eye(4)
-    matrix[:3, :3] = np.reshape(pybullet.getMatrixFromQuaternion(orientation), (3, 3))
-    matrix[:3, 3] = position
-    return matrix
+@dataclass(frozen=True)
+class _BodyShapes:
+    keys: tuple[GeometryKey, ...]
+    links: np.ndarray  # each shape's link index, -1: the base
+    local: np.ndarray  # (n, 4, 4): each shape in its link's frame
+    colors: np.ndarray  # (n, 4) float32
+    textured: bool
+
+
+@lru_cache(maxsize=1024)
+def _body_shapes(data: tuple) -> _BodyShapes:
+    """Parse a body's getVisualShapeData once per distinct answer (they repeat every frame)."""
+    keys, links, local, colors, textured = [], [], [], [], False
+    for _, link, kind, dimensions, filename, position, orientation, rgba, *rest in data:
+        if kind == pybullet.GEOM_PLANE:
+            continue  # the floor: the camera draws it itself
+        textured |= bool(rest) and rest[0] >= 0
+        keys.append((kind, tuple(round(d, 9) for d in dimensions),
+                     filename.decode() if isinstance(filename, bytes) else filename))
+        links.append(link)
+        local.append((position, orientation))
+        colors.append(rgba)
+    return _BodyShapes(tuple(keys), np.asarray(links, dtype=int),
+                       _matrices(local) if local else np.empty((0, 4, 4)),
+                       np.asarray(colors, dtype=np.float32).reshape(-1, 4), textured)
+
+
+def _matrices(poses) -> np.ndarray:
+    """Return the 4x4 transforms of (position, xyzw quaternion) pairs, (n, 4, 4)."""
+    positions = np.array([pose[0] for pose in poses], dtype=float)
+    x, y, z, w = np.array([pose[1] for pose in poses], dtype=float).T
+    matrices = np.zeros((len(poses), 4, 4))
+    matrices[:, 0, 0] = 1 - 2 * (y * y + z * z)
+    matrices[:, 0, 1] = 2 * (x * y - z * w)
+    matrices[:, 0, 2] = 2 * (x * z + y * w)
+    matrices[:, 1, 0] = 2 * (x * y + z * w)
+    matrices[:, 1, 1] = 1 - 2 * (x * x + z * z)
+    matrices[:, 1, 2] = 2 * (y * z - x * w)
+    matrices[:, 2, 0] = 2 * (x * z - y * w)
+    matrices[:, 2, 1] = 2 * (y * z + x * w)
+    matrices[:, 2, 2] = 1 - 2 * (x * x + y * y)
+    matrices[:, :3, 3] = positions
+    matrices[:, 3, 3] = 1
+    return matrices
 
 
 @lru_cache(maxsize=256)
 def shape_mesh(key: GeometryKey) -> tuple[np.ndarray, np.ndarray]:
     """Return a shape's triangles: positions and normals, (3 * faces, 3) float32 each."""
     kind, dimensions, filename = key
-    if kind == pybullet.GEOM_SPHERE:
-        return _sphere(dimensions[0])
-    if kind == pybullet.GEOM_BOX:
-        return _box(np.asarray(dimensions[:3]) / 2)
-    if kind in (pybullet.GEOM_CYLINDER, pybullet.GEOM_CAPSULE):
-        return _cylinder(dimensions[1], dimensions[0])
     if kind == pybullet.GEOM_MESH:
         return _obj_mesh(filename, tuple(dimensions[:3]))
-    raise ValueError(f'cannot draw pybullet geometry type {kind}')
+    if kind == pybullet.GEOM_SPHERE:
+        mesh = _sphere(dimensions[0])
+    elif kind == pybullet.GEOM_BOX:
+        mesh = _box(np.asarray(dimensions[:3]) / 2)
+    elif kind in (pybullet.GEOM_CYLINDER, pybullet.GEOM_CAPSULE):
+        mesh = _cylinder(dimensions[1], dimensions[0])
+    else:
+        raise ValueError(f'cannot draw pybullet geometry type {kind}')
+    return _facing_out(*mesh)
+
+
+def _facing_out(positions: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Wind each triangle of a convex shape round its centre counter-clockwise from outside."""
+    triangles = positions.reshape(-1, 3, 3)
+    facing = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
+    inward = np.einsum('ij,ij->i', facing, triangles.sum(axis=1)) < 0
+    order = np.where(inward[:, None], [0, 2, 1], [0, 1, 2])
+    rows = (np.arange(len(triangles))[:, None] * 3 + order).ravel()
+    return positions[rows], normals[rows]
 
 
 def _sphere(radius: float) -> tuple[np.ndarray, np.ndarray]:

@@ -134,7 +134,8 @@ class SimNode(Node):
 
     def clock(self, stamp_ns: int) -> None:
         """Publish ``/clock``."""
-        self._clock_stream.publish((), divmod(stamp_ns, NS))
+        if self._clock_stream.subscribers:  # else not even the stamp: thousands a second
+            self._clock_stream.publish((), divmod(stamp_ns, NS))
 
     def joint_states(self, stamp_ns: int, world: SimWorld) -> None:
         """Publish ``joint_states``, /tf and ``ball/true_pose`` of ``world`` now."""

@@ -1,10 +1,14 @@
 """The transform buffer's lookups, and their bounded wait for frames still to come."""
 
+import math
 import threading
 import time
 
+from geometry_msgs.msg import TransformStamped
 import numpy as np
 import pytest
+from rclpy.serialization import serialize_message
+from tf2_msgs.msg import TFMessage
 from ur_rg2_common.tf_buffer import FrameLookupError, TransformBuffer
 
 
@@ -56,3 +60,31 @@ def test_a_lookup_with_a_timeout_gives_up_with_the_reason():
     with pytest.raises(FrameLookupError, match='not connected'):
         tree.lookup('base_link', 'camera_link', timeout=0.2)
     assert time.monotonic() - started >= 0.2
+
+
+def test_serialized_messages_give_the_transforms_their_fields_give():
+    messages = []
+    for n in range(1, 6):  # frame names of every length modulo the alignments
+        message = TFMessage()
+        for k in range(n):
+            stamped = TransformStamped()
+            stamped.header.stamp.sec, stamped.header.stamp.nanosec = 17 + k, 5 * k
+            stamped.header.frame_id = 'p' * (k + n)
+            stamped.child_frame_id = '/c' + 'x' * k
+            t, r = stamped.transform.translation, stamped.transform.rotation
+            t.x, t.y, t.z = 0.1 * k, -2.0, 1e-9 * n
+            r.x, r.y, r.z, r.w = 0.0, math.sin(k / 2), 0.0, math.cos(k / 2)
+            message.transforms.append(stamped)
+        messages.append(message)
+    messages.append(TFMessage())
+    for message in messages:
+        by_fields, by_bytes = TransformBuffer(), TransformBuffer()
+        assert by_fields.add_message(message) == by_bytes.add_serialized(
+            serialize_message(message))
+        assert by_fields.frames() == by_bytes.frames()
+        for stamped in message.transforms:
+            parent, child = stamped.header.frame_id, stamped.child_frame_id
+            assert by_bytes.lookup(parent, child) == pytest.approx(
+                by_fields.lookup(parent, child))
+    assert TransformBuffer().add_serialized(b'\x00\x07\x00\x00') == 1  # not plain CDR
+    assert TransformBuffer().add_serialized(serialize_message(messages[2])[:40]) == 1

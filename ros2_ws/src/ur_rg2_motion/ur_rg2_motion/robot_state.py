@@ -4,7 +4,9 @@
 with the floor the transform tree places), the arm joints, their speed and the RG2's opening
 from ``joint_states``, the transform tree of ``/tf`` and ``/tf_static``, and the latest
 ``ball/position``. It reads messages by their fields only and is tested without a node;
-:func:`subscribe` wires a node's subscriptions to it.
+:func:`subscribe` wires a node's subscriptions to it. The busy topics (``joint_states``,
+``/tf``, ``ball/position``) wait in inboxes (ur_rg2_common.inbox) until the state is read: an
+idle node does no work per message.
 """
 
 from collections.abc import Callable, Sequence
@@ -15,7 +17,7 @@ import time
 from geometry_msgs.msg import PointStamped
 import numpy as np
 from rclpy.node import Node
-from rclpy.qos import qos_profile_sensor_data
+from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from tf2_msgs.msg import TFMessage
@@ -26,7 +28,8 @@ from ur_rg2_common.contract import (
     TF_QOS,
     WORLD_FRAME,
 )
-from ur_rg2_common.tf_buffer import FrameLookupError, TransformBuffer
+from ur_rg2_common.inbox import Inbox
+from ur_rg2_common.tf_buffer import PULL_PERIOD_S, FrameLookupError, TransformBuffer
 
 from ur_rg2_motion.kinematics import (
     BASE_LINK,
@@ -38,6 +41,10 @@ from ur_rg2_motion.kinematics import (
     urdf_velocity_limits,
 )
 from ur_rg2_motion.messages import ball_in_base_link
+
+# Best effort (a driver's reliable joint_states match too); deep enough that an arm's and a
+# gripper's joint states published apart are both among the newest (ur_rg2_common.inbox).
+JOINT_STATES_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT)
 
 
 class NotReceivedError(KinematicsError):
@@ -53,10 +60,13 @@ class RobotState:
     The arm and the RG2 may come in separate ``joint_states`` messages (a real cell: the UR
     driver, and ur_rg2_hardware's ``rg2_adapter``); each message updates what it has, and
     values that are not finite are left out. ``tcp_offset``: see ArmKinematics.from_urdf.
+    ``pull`` is called, holding no lock, before the joints, the gripper or the ball are read
+    and while they are waited for: it adds what came since (:func:`subscribe` sets it).
     """
 
     def __init__(self, tcp_offset: Sequence[float] | None = None) -> None:
         self.tf = TransformBuffer()
+        self.pull: Callable[[], object] = lambda: None
         self._tcp_offset = list(tcp_offset) if tcp_offset is not None else None
         # Notified when robot_description, /tf_static or the arm joints come: requests may
         # wait for them.
@@ -109,11 +119,25 @@ class RobotState:
             self._static = True
             self._lock.notify_all()
 
-    def add_ball(self, message: PointStamped) -> None:
-        """Take a ``ball/position`` message as the latest sighting."""
+    def add_ball(self, message: PointStamped, received: float | None = None) -> None:
+        """Take a ``ball/position`` message as the latest sighting.
+
+        ``received``: when it came (``time.monotonic()``), now by default.
+        """
         with self._lock:
-            self._ball = (time.monotonic(), message)
+            self._ball = (time.monotonic() if received is None else received, message)
             self._lock.notify_all()
+
+    def _wait_for(self, predicate: Callable[[], bool], wait: float) -> None:
+        """Pull until ``predicate`` (called holding the lock) is true, or ``wait`` s pass."""
+        deadline = time.monotonic() + wait
+        while True:
+            self.pull()
+            with self._lock:
+                remaining = deadline - time.monotonic()
+                if predicate() or remaining <= 0:
+                    return
+                self._lock.wait(min(remaining, PULL_PERIOD_S))
 
     # -- what the nodes ask ------------------------------------------------------------------
 
@@ -132,6 +156,7 @@ class RobotState:
     @property
     def ball(self) -> PointStamped | None:
         """The latest ``ball/position`` message, None before the first."""
+        self.pull()
         with self._lock:
             return None if self._ball is None else self._ball[1]
 
@@ -140,8 +165,8 @@ class RobotState:
 
         NotReceivedError when no joint_states has come, after waiting up to ``wait`` s for one.
         """
+        self._wait_for(lambda: self._joints is not None, wait)
         with self._lock:
-            self._lock.wait_for(lambda: self._joints is not None, wait)
             joints = self._joints
         if joints is None:
             raise NotReceivedError('joint_states')
@@ -149,11 +174,13 @@ class RobotState:
 
     def speed(self) -> float:
         """Return the fastest arm joint's speed (rad/s; 0 before the first joint_states)."""
+        self.pull()
         with self._lock:
             return self._speed
 
     def opening(self) -> float | None:
         """Return the RG2's opening (m, the sum of its finger joints), None before the first."""
+        self.pull()
         with self._lock:
             return self._opening
 
@@ -164,8 +191,8 @@ class RobotState:
         just started) it is waited for up to ``wait`` s. Its frame is waited for a bounded
         moment (messages.FRAME_WAIT_S).
         """
+        self._wait_for(lambda: self._ball is not None, wait)
         with self._lock:
-            self._lock.wait_for(lambda: self._ball is not None, wait)
             ball = self._ball
         return ball_in_base_link(self.tf, ball, max_age)
 
@@ -204,11 +231,16 @@ def subscribe(node: Node, state: RobotState,
     """Subscribe ``node`` to what ``state`` keeps.
 
     robot_description goes to ``on_description``, which hands it to
-    ``state.set_description`` and logs the outcome.
+    ``state.set_description`` and logs the outcome. ``/tf``, ``joint_states`` and
+    ``ball/position`` wait in inboxes that ``state`` pulls when it is read.
     """
     node.create_subscription(String, 'robot_description', on_description, LATCHED_QOS)
     node.create_subscription(TFMessage, '/tf_static', state.add_static, LATCHED_QOS)
-    node.create_subscription(TFMessage, '/tf', state.tf.add_message, TF_QOS)
-    node.create_subscription(JointState, 'joint_states', state.add_joint_state,
-                             qos_profile_sensor_data)
-    node.create_subscription(PointStamped, 'ball/position', state.add_ball, 10)
+    tf = Inbox(node, TFMessage, '/tf', TF_QOS, lambda data, _: state.tf.add_serialized(data),
+               raw=True)
+    joints = Inbox(node, JointState, 'joint_states', JOINT_STATES_QOS,
+                   lambda message, _: state.add_joint_state(message))
+    # Only the latest sighting counts.
+    ball = Inbox(node, PointStamped, 'ball/position', 1, state.add_ball)
+    state.tf.pull = tf.pull
+    state.pull = lambda: (joints.pull(), ball.pull())

@@ -5,13 +5,16 @@ RG2's opening, the ball where the physics has it (``ball/true_pose``) and where 
 (``ball/position``), the camera's frustum (``camera/color/camera_info`` and the tree) with the
 point cloud of its depth image, and the last pick's target (``pick_ball/result``). The HTTP side
 lives in :mod:`ur_rg2_tools.view3d_web`; this module wires topics into its :class:`Scene`.
-Images are taken serialized and decoded only when a page asks for the point cloud.
+The busy topics (joint states, ``/tf``, the ball, camera_info and images) wait in an
+:class:`~ur_rg2_common.inbox.Inbox` until a page asks for the scene; images are taken serialized
+and decoded only when a page asks for the point cloud.
 """
 
 from __future__ import annotations
 
 import re
 import sys
+import threading
 
 from geometry_msgs.msg import PointStamped, PoseStamped
 from rclpy.exceptions import ParameterException
@@ -22,6 +25,7 @@ from sensor_msgs.msg import CameraInfo, Image, JointState
 from std_msgs.msg import String
 from tf2_msgs.msg import TFMessage
 from ur_rg2_common.contract import GRIPPER_JOINTS, LATCHED_QOS, TF_QOS, WORLD_FRAME
+from ur_rg2_common.inbox import Inbox
 from ur_rg2_common.parameters import ParameterSpec, declare_parameters
 from ur_rg2_common.spin import run_node
 from ur_rg2_common.tf_buffer import FrameLookupError, TransformBuffer, transform_point
@@ -31,7 +35,6 @@ from ur_rg2_vision.viewer_web import is_loopback
 from ur_rg2_tools.view3d_web import Scene, View3dServer, depth_cloud, finite
 
 NODE_NAME = 'ur_rg2_view3d'
-FRAMES_PERIOD_S = 0.1  # how often the camera's and robot's poses are looked up in the tree
 # pick_ball/result's text names the ball it went for: "... at (x, y, z) m in base_link ...".
 _PICK_TARGET = re.compile(r'at \(([-\d.]+), ([-\d.]+), ([-\d.]+)\) m in (\w+)')
 
@@ -54,26 +57,33 @@ class View3dNode(Node):
         values = declare_parameters(self, _PARAMETERS)
         self.scene = Scene()
         self.scene.cloud = self._cloud
+        self.scene.refresh = self._refresh
         self._tree = TransformBuffer()
         self._images: dict[str, bytes] = {}  # latest serialized depth and colour images
         self._info: CameraInfo | None = None
         self._root = WORLD_FRAME
         self._pick: tuple | None = None
-        images = QoSProfile(depth=2, reliability=ReliabilityPolicy.RELIABLE)
-        for key, topic in (('depth', 'camera/depth/image_raw'),
-                           ('color', 'camera/color/image_raw')):
-            self.create_subscription(Image, topic, lambda data, key=key: self._images.__setitem__(
-                key, data), images, raw=True)
-        self.create_subscription(CameraInfo, 'camera/color/camera_info', self._on_info, 10)
-        self.create_subscription(JointState, 'joint_states', self._on_joints, 10)
+        # One page's /scene or /cloud at a time through the inboxes, the tree and the pick.
+        self._refreshing = threading.Lock()
+        # Only the newest image matters: DDS keeps one of each.
+        images = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
+        # /tf first: the ball's and the camera's poses are looked up in the tree.
+        self._inboxes = [
+            Inbox(self, TFMessage, '/tf', TF_QOS, lambda data, _: self._tree.add_serialized(data),
+                  raw=True),
+            Inbox(self, CameraInfo, 'camera/color/camera_info', 1, self._on_info),
+            Inbox(self, JointState, 'joint_states', 100, self._on_joints),
+            Inbox(self, PoseStamped, 'ball/true_pose', 1, self._on_true_pose),
+            Inbox(self, PointStamped, 'ball/position', 1, self._on_ball),
+            *(Inbox(self, Image, topic, images, lambda data, _, key=key:
+                    self._images.__setitem__(key, data), raw=True)
+              for key, topic in (('depth', 'camera/depth/image_raw'),
+                                 ('color', 'camera/color/image_raw'))),
+        ]
         self.create_subscription(String, 'robot_description', self._on_description,
                                  LATCHED_QOS)
-        self.create_subscription(TFMessage, '/tf', self._tree.add_message, TF_QOS)
         self.create_subscription(TFMessage, '/tf_static', self._tree.add_message, LATCHED_QOS)
-        self.create_subscription(PoseStamped, 'ball/true_pose', self._on_true_pose, 10)
-        self.create_subscription(PointStamped, 'ball/position', self._on_ball, 10)
         self.create_subscription(String, 'pick_ball/result', self._on_pick, LATCHED_QOS)
-        self.create_timer(FRAMES_PERIOD_S, self._update_frames)
 
         self._server = View3dServer(self.scene, values['address'], values['port'])
         try:
@@ -98,15 +108,16 @@ class View3dNode(Node):
         except FrameLookupError:
             return None
 
-    def _on_joints(self, msg: JointState) -> None:
+    def _on_joints(self, msg: JointState, received: float) -> None:
         if len(msg.position) != len(msg.name):
             return
         joints = {name: value for name, value in zip(msg.name, msg.position, strict=True)}
-        self.scene.set('joints', {name: round(value, 5) for name, value in joints.items()})
+        self.scene.set('joints', {name: round(value, 5) for name, value in joints.items()},
+                       received)
         fingers = [joints.get(name) for name in GRIPPER_JOINTS]
         # Each RG2 finger joint is half the opening between the pads (m).
         self.scene.set('gripper_opening_mm', round(1000 * sum(fingers), 1)
-                       if None not in fingers else None)
+                       if None not in fingers else None, received)
 
     def _on_description(self, msg: String) -> None:
         try:
@@ -120,21 +131,35 @@ class View3dNode(Node):
         self._root = roots[0] if roots else WORLD_FRAME
         self.get_logger().info(f'robot_description: {meshes} mesh files, root {self._root}')
 
-    def _on_info(self, msg: CameraInfo) -> None:
+    def _on_info(self, msg: CameraInfo, _received: float) -> None:
         self._info = msg
 
-    def _on_true_pose(self, msg: PoseStamped) -> None:
+    def _on_true_pose(self, msg: PoseStamped, received: float) -> None:
         p = msg.pose.position
-        self.scene.set('ball_true', self._world(msg.header.frame_id, (p.x, p.y, p.z)))
+        self.scene.set('ball_true', self._world(msg.header.frame_id, (p.x, p.y, p.z)),
+                       received)
 
-    def _on_ball(self, msg: PointStamped) -> None:
+    def _on_ball(self, msg: PointStamped, received: float) -> None:
         p = msg.point
-        self.scene.set('ball_detected', self._world(msg.header.frame_id, (p.x, p.y, p.z)))
+        self.scene.set('ball_detected', self._world(msg.header.frame_id, (p.x, p.y, p.z)),
+                       received)
 
     def _on_pick(self, msg: String) -> None:
         match = _PICK_TARGET.search(msg.data)
-        self._pick = (msg.data, match)
-        self.scene.set('pick', {'text': msg.data, 'target': None})
+        with self._refreshing:  # not between _update_frames' reading and clearing it
+            self._pick = (msg.data, match)
+            self.scene.set('pick', {'text': msg.data, 'target': None})
+
+    def _pull(self) -> None:
+        """Take what came on the busy topics (web threads, holding ``_refreshing``)."""
+        for inbox in self._inboxes:
+            inbox.pull()
+
+    def _refresh(self) -> None:
+        """Bring the scene up to date before a page reads it (web thread)."""
+        with self._refreshing:
+            self._pull()
+            self._update_frames()
 
     def _update_frames(self) -> None:
         info = self._info
@@ -160,6 +185,8 @@ class View3dNode(Node):
 
     def _cloud(self) -> dict | None:
         """Return the latest depth image's points in the world (web thread), or None."""
+        with self._refreshing:
+            self._pull()
         depth, color, info = self._images.get('depth'), self._images.get('color'), self._info
         if depth is None or info is None:
             return None

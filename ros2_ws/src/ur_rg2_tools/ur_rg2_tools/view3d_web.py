@@ -82,18 +82,27 @@ def finite(values, digits: int = 4) -> list[float] | None:
 
 
 class Scene:
-    """The latest state of the scene, set from ROS threads, read by the web server."""
+    """The latest state of the scene, set from ROS threads, read by the web server.
+
+    ``refresh`` is called before each ``/scene`` document is made (the node brings the
+    entries up to date then), ``cloud`` for each ``/cloud``.
+    """
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
         self._state: dict[str, tuple[Any, float]] = {}
         self._description: tuple[str, dict[str, Path]] | None = None
+        self.refresh: Callable[[], None] = lambda: None
         self.cloud: Callable[[], dict[str, Any] | None] = lambda: None
 
-    def set(self, key: str, value: Any) -> None:
-        """Set one entry of the ``/scene`` document (JSON-able)."""
+    def set(self, key: str, value: Any, stamp: float | None = None) -> None:
+        """Set one entry of the ``/scene`` document (JSON-able).
+
+        ``stamp``: when its value came (``time.monotonic()``), now by default; its age counts
+        from then.
+        """
         with self._lock:
-            self._state[key] = (value, time.monotonic())
+            self._state[key] = (value, time.monotonic() if stamp is None else stamp)
 
     def set_description(self, urdf: str) -> int:
         """Take a new robot description; return how many mesh files it names (ValueError)."""
@@ -130,7 +139,10 @@ async def _page(request: web.Request) -> web.Response:
 
 
 async def _scene(request: web.Request) -> web.Response:
-    return web.json_response(request.app[SCENE].document(), headers=_NO_CACHE)
+    scene = request.app[SCENE]
+    # Off the event loop: it takes and reads what came since the last request.
+    await asyncio.get_running_loop().run_in_executor(None, scene.refresh)
+    return web.json_response(scene.document(), headers=_NO_CACHE)
 
 
 async def _cloud(request: web.Request) -> web.Response:

@@ -10,6 +10,9 @@ sim node's ``camera_position`` and ``camera_look_at`` parameters every few secon
 change). The last ``pick_ball`` result of the motion node is shown as it comes, whether the
 learned policy (ur_rg2_learning's ``policy`` node, ``policy/driving``) drives the arm, and its
 last episode's outcome (``policy/result``).
+
+The joint states and the ball wait in an :class:`~ur_rg2_common.inbox.Inbox` until a page asks
+for ``/state``; images are taken serialized and decoded only when a page shows them.
 """
 
 from __future__ import annotations
@@ -24,12 +27,14 @@ from rcl_interfaces.srv import GetParameters
 from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 from rclpy.parameter import parameter_value_to_python
+from rclpy.serialization import deserialize_message
 from rclpy.task import Future
 from sensor_msgs.msg import Image, JointState
 from std_msgs.msg import Bool, String
 from tf2_msgs.msg import TFMessage
 from ur_rg2_common.camera_pose import optical_rotation
 from ur_rg2_common.contract import IMAGE_QOS, LATCHED_QOS, WORLD_FRAME
+from ur_rg2_common.inbox import Inbox
 from ur_rg2_common.parameters import ParameterSpec, declare_parameters
 from ur_rg2_common.spin import run_node
 from ur_rg2_common.tf_buffer import FrameLookupError, TransformBuffer, transform_point
@@ -86,11 +91,12 @@ class ViewerNode(Node):
         address, port, image_topic = values['address'], values['port'], values['image_topic']
         quality = values['jpeg_quality']
 
-        self._hub = FrameHub(quality)
-        # The hub keeps only the newest frame anyway.
-        self.create_subscription(Image, image_topic, self._on_image, IMAGE_QOS)
-        self.create_subscription(JointState, 'joint_states', self._on_joint_state, 10)
-        self.create_subscription(PointStamped, 'ball/position', self._on_ball, 10)
+        self._hub = FrameHub(quality, self._decode)
+        # The hub keeps only the newest frame anyway; it counts them as they come.
+        self.create_subscription(Image, image_topic, self._hub.put_frame, IMAGE_QOS, raw=True)
+        self._inboxes = (Inbox(self, JointState, 'joint_states', 100, self._on_joint_state),
+                         Inbox(self, PointStamped, 'ball/position', 1, self._on_ball))
+        self._hub.refresh = self._refresh
         # The camera and base_link are fixed in the world: /tf_static has all the ball needs.
         self._tree = TransformBuffer()
         self.create_subscription(TFMessage, '/tf_static', self._tree.add_message, LATCHED_QOS)
@@ -123,19 +129,26 @@ class ViewerNode(Node):
         """Address of the page."""
         return self._server.url
 
-    def _on_image(self, msg: Image) -> None:
+    def _decode(self, data: bytes) -> np.ndarray | None:
+        """Return a serialized image as RGB (web thread), None when it cannot be shown."""
         try:
-            self._hub.put_frame(image_to_rgb(msg))
+            return image_to_rgb(deserialize_message(data, Image))
         except ValueError as error:
             self.get_logger().warning(f'image dropped: {error}', throttle_duration_sec=10.0)
+            return None
 
-    def _on_joint_state(self, msg: JointState) -> None:
+    def _refresh(self) -> None:
+        """Take what came on the busy topics before a page reads the state (web thread)."""
+        for inbox in self._inboxes:
+            inbox.pull()
+
+    def _on_joint_state(self, msg: JointState, received: float) -> None:
         if len(msg.position) != len(msg.name):
             return  # positions omitted or malformed: no angles to show from this message
         for key, value in joint_summary(msg.name, msg.position).items():
-            self._hub.set_state(key, value)
+            self._hub.set_state(key, value, received)
 
-    def _on_ball(self, msg: PointStamped) -> None:
+    def _on_ball(self, msg: PointStamped, received: float) -> None:
         point = msg.point
         frame = msg.header.frame_id
         try:
@@ -148,7 +161,7 @@ class ViewerNode(Node):
         except FrameLookupError:
             summary = ball_summary(frame, (point.x, point.y, point.z),
                                    self._to_world if frame == CAMERA_FRAME else None)
-        self._hub.set_state('ball', summary)
+        self._hub.set_state('ball', summary, received)
 
     def _on_pick_result(self, msg: String) -> None:
         self._hub.set_state('pick', msg.data)

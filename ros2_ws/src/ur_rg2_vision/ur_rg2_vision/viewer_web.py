@@ -88,42 +88,58 @@ def ball_summary(frame_id: str, point: Sequence[float],
 class FrameHub:
     """Latest camera frame and robot state, handed from ROS threads to the web server.
 
-    ``put_frame`` and ``set_state`` may be called from any thread. Each new frame is
-    JPEG-encoded at most once, lazily, the first time a client asks for it, and the same bytes
-    go to every client; frames nobody asked for are never encoded. A slow client simply
-    skips to the newest frame, so nothing queues up behind it.
+    ``put_frame`` and ``set_state`` may be called from any thread. Each new frame is decoded
+    (``decode``) and JPEG-encoded at most once, lazily, the first time a client asks for it,
+    and the same bytes go to every client; frames nobody asked for are never decoded. A slow
+    client simply skips to the newest frame, so nothing queues up behind it. ``refresh`` is
+    called before each ``/state`` document is made (the node brings the entries up to date).
     """
 
-    def __init__(self, jpeg_quality: int = 80) -> None:
+    def __init__(self, jpeg_quality: int = 80,
+                 decode: Callable[[Any], np.ndarray | None] | None = None) -> None:
+        """``decode`` makes a put frame an RGB array (None: it cannot); by default it is one."""
         self.jpeg_quality = jpeg_quality
-        self.viewers = 0  # /stream clients connected now (read and written on the loop only)
+        self.viewers = 0  # /stream clients connected now (written on the loop only)
+        self.refresh: Callable[[], None] = lambda: None
+        self._decode = decode or (lambda frame: frame)
+        self._decoded: tuple[int, np.ndarray | None] | None = None  # (seq, the newest decoded)
+        self._decoding = threading.Lock()
         self._lock = threading.Lock()
-        self._frame: np.ndarray | None = None
+        self._frame: Any = None
         self._seq = 0
         self._arrivals: deque[float] = deque(maxlen=31)  # monotonic times, for the frame rate
         self._state: dict[str, tuple[Any, float]] = {}  # key: (value, monotonic time set)
         self._loop: asyncio.AbstractEventLoop | None = None
         self._wakeup: asyncio.Event | None = None
-        self._jpeg: tuple[int, asyncio.Future[bytes]] | None = None
+        self._jpeg: tuple[int, asyncio.Future[bytes | None]] | None = None
         self._closed = False
 
-    def put_frame(self, rgb: np.ndarray) -> None:
-        """Make ``rgb`` (H×W×3 uint8, RGB) the latest frame; it must not be modified later."""
+    def put_frame(self, frame: Any) -> None:
+        """Make ``frame`` the latest; it must not be modified later.
+
+        An RGB array (H×W×3 uint8), or what the hub's ``decode`` makes one of.
+        """
         with self._lock:
-            self._frame = rgb
+            self._frame = frame
             self._seq += 1
             self._arrivals.append(time.monotonic())
             loop = self._loop
-        if loop is not None:
+        # Only streams wait for frames; one that starts now takes this frame without a wakeup
+        # (its viewer is counted before it looks at the frame).
+        if loop is not None and self.viewers:
             try:
                 loop.call_soon_threadsafe(self._notify)
             except RuntimeError:  # the loop closed under us: the server is stopping
                 pass
 
-    def set_state(self, key: str, value: Any) -> None:
-        """Set one top-level entry of the ``/state`` document (``value`` must be JSON-able)."""
+    def set_state(self, key: str, value: Any, stamp: float | None = None) -> None:
+        """Set one top-level entry of the ``/state`` document (``value`` must be JSON-able).
+
+        ``stamp``: when its value came (``time.monotonic()``), now by default; its age counts
+        from then.
+        """
         with self._lock:
-            self._state[key] = (value, time.monotonic())
+            self._state[key] = (value, time.monotonic() if stamp is None else stamp)
 
     def state(self) -> dict[str, Any]:
         """Return the ``/state`` document.
@@ -131,9 +147,11 @@ class FrameHub:
         It holds the entries set so far, ``ages`` (seconds since each entry was set),
         ``camera`` statistics and the number of stream ``viewers``.
         """
+        self.refresh()
         with self._lock:
             entries = dict(self._state)
             frame, seq, arrivals = self._frame, self._seq, list(self._arrivals)
+        frame = None if frame is None else self._rgb(seq, frame)
         now = time.monotonic()
         state = {key: value for key, (value, _) in entries.items()}
         state['ages'] = {key: now - stamp for key, (_, stamp) in entries.items()}
@@ -176,7 +194,10 @@ class FrameHub:
             with self._lock:
                 seq, frame = self._seq, self._frame
             if seq > after and frame is not None:
-                return seq, await self._encoded(seq, frame)
+                jpeg = await self._encoded(seq, frame)
+                if jpeg is not None:
+                    return seq, jpeg
+                after = seq  # a frame that cannot be decoded: wait for the next
             await self._wakeup.wait()
         return None
 
@@ -186,11 +207,22 @@ class FrameHub:
             seq, frame = self._seq, self._frame
         return None if frame is None else await self._encoded(seq, frame)
 
-    async def _encoded(self, seq: int, frame: np.ndarray) -> bytes:
+    def _rgb(self, seq: int, frame: Any) -> np.ndarray | None:
+        """Return frame ``seq`` decoded (None: it cannot be), decoding it once."""
+        with self._decoding:
+            if self._decoded is None or self._decoded[0] != seq:
+                self._decoded = (seq, self._decode(frame))
+            return self._decoded[1]
+
+    def _jpeg_of(self, seq: int, frame: Any) -> bytes | None:
+        rgb = self._rgb(seq, frame)
+        return None if rgb is None else encode_jpeg(rgb, self.jpeg_quality)
+
+    async def _encoded(self, seq: int, frame: Any) -> bytes | None:
         if self._jpeg is None or self._jpeg[0] != seq:
-            # Encode off the event loop so streaming and /state stay responsive meanwhile.
+            # Decode and encode off the event loop so streaming and /state stay responsive.
             future = asyncio.get_running_loop().run_in_executor(
-                None, encode_jpeg, frame, self.jpeg_quality)
+                None, self._jpeg_of, seq, frame)
             self._jpeg = (seq, future)
         # Shielded: one client going away must not cancel the encoding the others await.
         return await asyncio.shield(self._jpeg[1])
@@ -210,7 +242,9 @@ async def favicon(_request: web.Request) -> web.Response:
 
 
 async def _state(request: web.Request) -> web.Response:
-    return web.json_response(request.app[HUB].state(), headers={'Cache-Control': 'no-store'})
+    # Off the event loop: it takes what came since the last request, and may decode a frame.
+    state = await asyncio.get_running_loop().run_in_executor(None, request.app[HUB].state)
+    return web.json_response(state, headers={'Cache-Control': 'no-store'})
 
 
 async def _snapshot(request: web.Request) -> web.Response:

@@ -11,7 +11,7 @@ def test_messages_wait_for_a_pull_and_come_in_order_with_their_arrival(ros_graph
     node = ros_graph.node('inbox_owner')
     handled = []
     inbox = Inbox(node, String, 'news', 10,
-                  lambda message, received: handled.append((message.data, received)))
+                  lambda message, arrival: handled.append((message.data, arrival)))
     publisher = ros_graph.node('inbox_sender').create_publisher(String, 'news', 10)
     wait_for(lambda: publisher.get_subscription_count() == 1, 10, 'the inbox to subscribe')
 
@@ -23,7 +23,8 @@ def test_messages_wait_for_a_pull_and_come_in_order_with_their_arrival(ros_graph
     wait_for(lambda: inbox.pull() >= 0 and len(handled) == 3, 10, 'the three messages')
     pulled = time.monotonic()
     assert [data for data, _ in handled] == ['0', '1', '2']
-    assert all(sent - 0.05 <= received <= pulled for _, received in handled)
+    assert [arrival.sequence for _, arrival in handled] == [1, 2, 3]
+    assert all(sent - 0.05 <= arrival.received <= pulled for _, arrival in handled)
     assert inbox.pull() == 0
 
 

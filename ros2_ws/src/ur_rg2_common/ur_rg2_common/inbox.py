@@ -12,11 +12,18 @@ entity may run; the EventsExecutor does not.
 from collections.abc import Callable
 import threading
 import time
-from typing import Any
+from typing import Any, NamedTuple
 
 from rclpy.callback_groups import CallbackGroup
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
+
+
+class Arrival(NamedTuple):
+    """When a message came, and its publisher's count of messages (1 for the first)."""
+
+    received: float  # time.monotonic()'s clock
+    sequence: int
 
 
 class _Unscheduled(CallbackGroup):
@@ -40,10 +47,9 @@ class Inbox:
     """A subscription whose messages wait in DDS until :meth:`pull` hands them on."""
 
     def __init__(self, node: Node, msg_type: type, topic: str, qos: QoSProfile | int,
-                 handle: Callable[[Any, float], None], *, raw: bool = False) -> None:
-        """Subscribe ``node``; :meth:`pull` calls ``handle(message, received)``.
+                 handle: Callable[[Any, Arrival], None], *, raw: bool = False) -> None:
+        """Subscribe ``node``; :meth:`pull` calls ``handle(message, arrival)``.
 
-        ``received`` is the message's arrival in this process on ``time.monotonic()``'s clock.
         ``raw``: the message as its serialized bytes (rclpy.serialization to read it).
         """
         self._handle = handle
@@ -63,6 +69,7 @@ class Inbox:
                 message, info = taken
                 # received_timestamp is the system clock's, in ns.
                 age = max(0.0, time.time() - info['received_timestamp'] * 1e-9)
-                self._handle(message, time.monotonic() - age)
+                self._handle(message, Arrival(time.monotonic() - age,
+                                              info['publication_sequence_number']))
                 count += 1
         return count

@@ -241,6 +241,7 @@ def subscribe(node: Node, state: RobotState,
     joints = Inbox(node, JointState, 'joint_states', JOINT_STATES_QOS,
                    lambda message, _: state.add_joint_state(message))
     # Only the latest sighting counts.
-    ball = Inbox(node, PointStamped, 'ball/position', 1, state.add_ball)
+    ball = Inbox(node, PointStamped, 'ball/position', 1,
+                 lambda message, arrival: state.add_ball(message, arrival.received))
     state.tf.pull = tf.pull
     state.pull = lambda: (joints.pull(), ball.pull())

@@ -25,7 +25,7 @@ from sensor_msgs.msg import CameraInfo, Image, JointState
 from std_msgs.msg import String
 from tf2_msgs.msg import TFMessage
 from ur_rg2_common.contract import GRIPPER_JOINTS, LATCHED_QOS, TF_QOS, WORLD_FRAME
-from ur_rg2_common.inbox import Inbox
+from ur_rg2_common.inbox import Arrival, Inbox
 from ur_rg2_common.parameters import ParameterSpec, declare_parameters
 from ur_rg2_common.spin import run_node
 from ur_rg2_common.tf_buffer import FrameLookupError, TransformBuffer, transform_point
@@ -108,16 +108,16 @@ class View3dNode(Node):
         except FrameLookupError:
             return None
 
-    def _on_joints(self, msg: JointState, received: float) -> None:
+    def _on_joints(self, msg: JointState, arrival: Arrival) -> None:
         if len(msg.position) != len(msg.name):
             return
         joints = {name: value for name, value in zip(msg.name, msg.position, strict=True)}
         self.scene.set('joints', {name: round(value, 5) for name, value in joints.items()},
-                       received)
+                       arrival.received)
         fingers = [joints.get(name) for name in GRIPPER_JOINTS]
         # Each RG2 finger joint is half the opening between the pads (m).
         self.scene.set('gripper_opening_mm', round(1000 * sum(fingers), 1)
-                       if None not in fingers else None, received)
+                       if None not in fingers else None, arrival.received)
 
     def _on_description(self, msg: String) -> None:
         try:
@@ -131,18 +131,18 @@ class View3dNode(Node):
         self._root = roots[0] if roots else WORLD_FRAME
         self.get_logger().info(f'robot_description: {meshes} mesh files, root {self._root}')
 
-    def _on_info(self, msg: CameraInfo, _received: float) -> None:
+    def _on_info(self, msg: CameraInfo, _arrival: Arrival) -> None:
         self._info = msg
 
-    def _on_true_pose(self, msg: PoseStamped, received: float) -> None:
+    def _on_true_pose(self, msg: PoseStamped, arrival: Arrival) -> None:
         p = msg.pose.position
         self.scene.set('ball_true', self._world(msg.header.frame_id, (p.x, p.y, p.z)),
-                       received)
+                       arrival.received)
 
-    def _on_ball(self, msg: PointStamped, received: float) -> None:
+    def _on_ball(self, msg: PointStamped, arrival: Arrival) -> None:
         p = msg.point
         self.scene.set('ball_detected', self._world(msg.header.frame_id, (p.x, p.y, p.z)),
-                       received)
+                       arrival.received)
 
     def _on_pick(self, msg: String) -> None:
         match = _PICK_TARGET.search(msg.data)

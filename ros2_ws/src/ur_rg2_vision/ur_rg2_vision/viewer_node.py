@@ -11,8 +11,8 @@ change). The last ``pick_ball`` result of the motion node is shown as it comes, 
 learned policy (ur_rg2_learning's ``policy`` node, ``policy/driving``) drives the arm, and its
 last episode's outcome (``policy/result``).
 
-The joint states and the ball wait in an :class:`~ur_rg2_common.inbox.Inbox` until a page asks
-for ``/state``; images are taken serialized and decoded only when a page shows them.
+The images, joint states and the ball wait in an :class:`~ur_rg2_common.inbox.Inbox` until a
+page asks for them; images are taken serialized, and decoded only when a page shows them.
 """
 
 from __future__ import annotations
@@ -27,14 +27,15 @@ from rcl_interfaces.srv import GetParameters
 from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 from rclpy.parameter import parameter_value_to_python
+from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 from rclpy.task import Future
 from sensor_msgs.msg import Image, JointState
 from std_msgs.msg import Bool, String
 from tf2_msgs.msg import TFMessage
 from ur_rg2_common.camera_pose import optical_rotation
-from ur_rg2_common.contract import IMAGE_QOS, LATCHED_QOS, WORLD_FRAME
-from ur_rg2_common.inbox import Inbox
+from ur_rg2_common.contract import LATCHED_QOS, WORLD_FRAME
+from ur_rg2_common.inbox import Arrival, Inbox
 from ur_rg2_common.parameters import ParameterSpec, declare_parameters
 from ur_rg2_common.spin import run_node
 from ur_rg2_common.tf_buffer import FrameLookupError, TransformBuffer, transform_point
@@ -92,8 +93,12 @@ class ViewerNode(Node):
         quality = values['jpeg_quality']
 
         self._hub = FrameHub(quality, self._decode)
-        # The hub keeps only the newest frame anyway; it counts them as they come.
-        self.create_subscription(Image, image_topic, self._hub.put_frame, IMAGE_QOS, raw=True)
+        # Only the newest frame is shown: DDS keeps one (reliable, as the camera topics are);
+        # the hub counts the frames skipped by their publisher's sequence numbers.
+        frames = Inbox(self, Image, image_topic,
+                       QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE),
+                       lambda data, arrival: self._hub.put_frame(data, *arrival), raw=True)
+        self._hub.pull_frames = frames.pull
         self._inboxes = (Inbox(self, JointState, 'joint_states', 100, self._on_joint_state),
                          Inbox(self, PointStamped, 'ball/position', 1, self._on_ball))
         self._hub.refresh = self._refresh
@@ -142,13 +147,13 @@ class ViewerNode(Node):
         for inbox in self._inboxes:
             inbox.pull()
 
-    def _on_joint_state(self, msg: JointState, received: float) -> None:
+    def _on_joint_state(self, msg: JointState, arrival: Arrival) -> None:
         if len(msg.position) != len(msg.name):
             return  # positions omitted or malformed: no angles to show from this message
         for key, value in joint_summary(msg.name, msg.position).items():
-            self._hub.set_state(key, value, received)
+            self._hub.set_state(key, value, arrival.received)
 
-    def _on_ball(self, msg: PointStamped, received: float) -> None:
+    def _on_ball(self, msg: PointStamped, arrival: Arrival) -> None:
         point = msg.point
         frame = msg.header.frame_id
         try:
@@ -161,7 +166,7 @@ class ViewerNode(Node):
         except FrameLookupError:
             summary = ball_summary(frame, (point.x, point.y, point.z),
                                    self._to_world if frame == CAMERA_FRAME else None)
-        self._hub.set_state('ball', summary, received)
+        self._hub.set_state('ball', summary, arrival.received)
 
     def _on_pick_result(self, msg: String) -> None:
         self._hub.set_state('pick', msg.data)

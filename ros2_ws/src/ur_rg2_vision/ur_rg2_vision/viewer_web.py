@@ -27,6 +27,8 @@ import numpy as np
 BOUNDARY = 'frame'
 GRIPPER_PREFIX = 'rg2_'
 PAGE = importlib.resources.files(__package__).joinpath('web', 'index.html').read_text('utf-8')
+# How often a stream looks for a new frame when frames are taken only when asked, s.
+FRAME_PULL_PERIOD_S = 0.01
 # The tab's icon, the ball: browsers ask for /favicon.ico whatever a page says.
 FAVICON = ('<svg xmlns="http://www.w3.org/2000/svg" viewBox="0 0 16 16">'
            '<circle cx="8" cy="8" r="7" fill="#d62020"/></svg>')
@@ -93,6 +95,8 @@ class FrameHub:
     and the same bytes go to every client; frames nobody asked for are never decoded. A slow
     client simply skips to the newest frame, so nothing queues up behind it. ``refresh`` is
     called before each ``/state`` document is made (the node brings the entries up to date).
+    ``pull_frames``, when set, puts the newest frame: frames are then taken only when asked
+    for (``/state``, ``/snapshot``, and every ``FRAME_PULL_PERIOD_S`` while a stream is open).
     """
 
     def __init__(self, jpeg_quality: int = 80,
@@ -101,28 +105,39 @@ class FrameHub:
         self.jpeg_quality = jpeg_quality
         self.viewers = 0  # /stream clients connected now (written on the loop only)
         self.refresh: Callable[[], None] = lambda: None
+        self.pull_frames: Callable[[], object] | None = None
         self._decode = decode or (lambda frame: frame)
         self._decoded: tuple[int, np.ndarray | None] | None = None  # (seq, the newest decoded)
         self._decoding = threading.Lock()
         self._lock = threading.Lock()
         self._frame: Any = None
-        self._seq = 0
-        self._arrivals: deque[float] = deque(maxlen=31)  # monotonic times, for the frame rate
+        self._seq = 0  # frames so far
+        self._published: int | None = None  # the publisher's count of the latest frame
+        # (monotonic time, frames so far) of the latest frames put, for the frame rate
+        self._arrivals: deque[tuple[float, int]] = deque(maxlen=31)
         self._state: dict[str, tuple[Any, float]] = {}  # key: (value, monotonic time set)
         self._loop: asyncio.AbstractEventLoop | None = None
         self._wakeup: asyncio.Event | None = None
         self._jpeg: tuple[int, asyncio.Future[bytes | None]] | None = None
         self._closed = False
 
-    def put_frame(self, frame: Any) -> None:
+    def put_frame(self, frame: Any, received: float | None = None,
+                  sequence: int | None = None) -> None:
         """Make ``frame`` the latest; it must not be modified later.
 
-        An RGB array (H×W×3 uint8), or what the hub's ``decode`` makes one of.
+        An RGB array (H×W×3 uint8), or what the hub's ``decode`` makes one of. ``received``:
+        when it came (``time.monotonic()``), now by default. ``sequence``: its publisher's count
+        of frames; the frames it skipped since the latest count as come.
         """
         with self._lock:
+            skipped = 0
+            if sequence is not None and self._published is not None:
+                skipped = max(0, sequence - self._published - 1)
+            self._published = sequence
             self._frame = frame
-            self._seq += 1
-            self._arrivals.append(time.monotonic())
+            self._seq += 1 + skipped
+            self._arrivals.append((time.monotonic() if received is None else received,
+                                   self._seq))
             loop = self._loop
         # Only streams wait for frames; one that starts now takes this frame without a wakeup
         # (its viewer is counted before it looks at the frame).
@@ -148,6 +163,8 @@ class FrameHub:
         ``camera`` statistics and the number of stream ``viewers``.
         """
         self.refresh()
+        if self.pull_frames is not None:
+            self.pull_frames()
         with self._lock:
             entries = dict(self._state)
             frame, seq, arrivals = self._frame, self._seq, list(self._arrivals)
@@ -156,12 +173,13 @@ class FrameHub:
         state = {key: value for key, (value, _) in entries.items()}
         state['ages'] = {key: now - stamp for key, (_, stamp) in entries.items()}
         fps = None
-        if len(arrivals) >= 2 and now - arrivals[-1] < 2.0:
-            fps = (len(arrivals) - 1) / (arrivals[-1] - arrivals[0])
+        if len(arrivals) >= 2 and now - arrivals[-1][0] < 2.0:
+            (first, first_seq), (last, last_seq) = arrivals[0], arrivals[-1]
+            fps = (last_seq - first_seq) / (last - first) if last > first else None
         state['camera'] = {
             'frames': seq,
             'fps': fps,
-            'age_s': now - arrivals[-1] if arrivals else None,
+            'age_s': now - arrivals[-1][0] if arrivals else None,
             'width': None if frame is None else frame.shape[1],
             'height': None if frame is None else frame.shape[0],
         }
@@ -191,6 +209,8 @@ class FrameHub:
     async def next_jpeg(self, after: int) -> tuple[int, bytes] | None:
         """Wait for a frame newer than sequence number ``after``; ``None`` once closed."""
         while not self._closed:
+            if self.pull_frames is not None:
+                self.pull_frames()
             with self._lock:
                 seq, frame = self._seq, self._frame
             if seq > after and frame is not None:
@@ -198,11 +218,16 @@ class FrameHub:
                 if jpeg is not None:
                     return seq, jpeg
                 after = seq  # a frame that cannot be decoded: wait for the next
-            await self._wakeup.wait()
+            if self.pull_frames is None:
+                await self._wakeup.wait()
+            else:
+                await asyncio.sleep(FRAME_PULL_PERIOD_S)
         return None
 
     async def latest_jpeg(self) -> bytes | None:
         """Return the newest frame as JPEG, or ``None`` when no frame came yet."""
+        if self.pull_frames is not None:
+            self.pull_frames()
         with self._lock:
             seq, frame = self._seq, self._frame
         return None if frame is None else await self._encoded(seq, frame)

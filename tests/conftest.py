@@ -39,17 +39,36 @@ GRIPPER_DOWN = pybullet.getQuaternionFromEuler([math.pi, 0, 0])
 # on this machine never share one: a test that met another graph on its domain received its
 # robot_description, joint_states and tool_jog.
 _TEST_DOMAINS = 99
-_domain_ids = itertools.count((os.getpid() * 37) % _TEST_DOMAINS)
 _DOMAIN_LOCKS = Path(tempfile.gettempdir()) / 'ur_rg2_test_domains'
 _HELD_DOMAINS = 8  # the ids of the last few tests this process holds; older ones are freed
 _held_domains: deque = deque()  # (domain id, its open lock file)
 
 
+def _worker_domains() -> range:
+    """Return the domain ids of this pytest-xdist worker (``-n N``): a slice of its own.
+
+    The workers of one run then never meet on a domain, not even when a module's graph (a
+    module-scoped fixture) outlives the last few ids its worker holds locked. Without xdist, or
+    with too many workers for a slice each, every id 1-99 (the locks keep them apart).
+    """
+    workers = int(os.environ.get('PYTEST_XDIST_WORKER_COUNT', '1'))
+    size = _TEST_DOMAINS // workers
+    worker = os.environ.get('PYTEST_XDIST_WORKER', '')  # gw0, gw1, ...
+    if workers < 2 or size < 2 * _HELD_DOMAINS or not worker.startswith('gw'):
+        return range(1, _TEST_DOMAINS + 1)
+    first = 1 + int(worker[2:]) * size
+    return range(first, first + size)
+
+
+_DOMAINS = _worker_domains()
+_domain_ids = itertools.count((os.getpid() * 37) % len(_DOMAINS))
+
+
 def next_domain_id() -> int:
     """Return a domain id no other test of this run or of a concurrent run holds."""
     _DOMAIN_LOCKS.mkdir(exist_ok=True)
-    for _ in range(_TEST_DOMAINS):
-        domain = 1 + next(_domain_ids) % _TEST_DOMAINS
+    for _ in range(len(_DOMAINS)):
+        domain = _DOMAINS[next(_domain_ids) % len(_DOMAINS)]
         if any(domain == held for held, _ in _held_domains):
             continue
         lock = open(_DOMAIN_LOCKS / f'{domain}.lock', 'w')  # noqa: SIM115 - held until freed

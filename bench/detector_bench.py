@@ -1,7 +1,7 @@
 """Benchmark of the two ball detectors side by side, on held-out hard sets, and the shipped model.
 
 1. Hard sets: seeded frames rendered by the sim's world and camera
-   (:func:`ur_rg2_vision.scenes.hard_scenes`, seeds the training never used): random camera
+   (:func:`ur_rg2_detector.scenes.hard_scenes`, seeds the training never used): random camera
    poses, floor colours and lights, cubes, boxes and flat discs of any colour (the ball's
    too), and in most frames one ball of 1.5-8 cm radius: of a saturated colour (both
    detectors), then of a plain one (pastel, white, grey, dark; the learned detector). Each
@@ -33,8 +33,8 @@ PLAIN = ('pastel', 'white', 'grey', 'dark')  # balls without a strong hue
 
 def _scored(shots, detectors: dict) -> dict[str, dict]:
     """Run each detector as the node does (find, confirm and locate with the depth) on shots."""
+    from ur_rg2_detector.scenes import MIN_VISIBLE
     from ur_rg2_vision.localize import locate_first
-    from ur_rg2_vision.scenes import MIN_VISIBLE
 
     results = {name: {'balls': 0, 'found': 0, 'false': 0, 'errors': [], 'times': [],
                       'empty': 0} for name in detectors}
@@ -83,6 +83,7 @@ def _rows(label: str, r: dict, load: str, targets: tuple[str, str, str, str]
 
 def run() -> list[tuple[str, str, str]]:
     """Measure both detectors; return benchmark rows (metric, measured, target)."""
+    from ur_rg2_detector.scenes import hard_scenes
     from ur_rg2_vision.detector import BallDetector
     from ur_rg2_vision.learned import (
         MODEL_FILE,
@@ -91,7 +92,6 @@ def run() -> list[tuple[str, str, str]]:
         BallModel,
         LearnedBallDetector,
     )
-    from ur_rg2_vision.scenes import hard_scenes
 
     learned = LearnedBallDetector(BallModel(), 4.0)
     targets = ('>= 95%', '0', 'median <= 5 mm', 'p95 <= 30 ms')

@@ -3,7 +3,7 @@
 1. Detection: the node's per-frame work (find the ball, confirm and locate it with depth) on
    640x480 frames rendered by the sim: the ball near and far, partly hidden by the gripper,
    next to a red cube, and no ball.
-2. Sizes: on seeded frames rendered by the sim (:mod:`ur_rg2_vision.scenes`), one red ball of
+2. Sizes: on seeded frames rendered by the sim (:mod:`ur_rg2_detector.scenes`), one red ball of
    1.5-8 cm radius 0.5-2 m away, the node at its defaults (the radius measured): how many are
    found, how far off their centre and radius are, and the time per frame; and frames of red
    cubes, boxes, flat patches and balls of other colours, in which no ball may be found.
@@ -101,9 +101,9 @@ def _detection_times(frames: list) -> list[float]:
 
 def _sizes() -> dict[str, list]:
     """Run the node's per-frame work on the seeded frames of balls and of things not balls."""
+    from ur_rg2_detector.scenes import no_balls, sized_balls
     from ur_rg2_vision.detector import BallDetector
     from ur_rg2_vision.localize import locate_first
-    from ur_rg2_vision.scenes import no_balls, sized_balls
 
     detector = BallDetector()
     result = {'missed': [], 'errors': [], 'radius_errors': [], 'times': [], 'false': []}

@@ -1,6 +1,6 @@
 """Make the README's pictures of the learned ball detector: detections on hard scenes, the curve.
 
-Renders seeded scenes of the held-out hard set (:func:`ur_rg2_vision.scenes.hard_scenes`),
+Renders seeded scenes of the held-out hard set (:func:`ur_rg2_detector.scenes.hard_scenes`),
 runs both detectors on each as the vision node does (find, then locate with the depth), and
 draws what each reports as a ball: the learned detector's in green, the colour detector's in
 magenta (a ball the depth confirms: a circle; a box the model saw that the depth refused:
@@ -16,10 +16,10 @@ import shutil
 
 import cv2
 import numpy as np
+from ur_rg2_detector.scenes import hard_scenes
 from ur_rg2_vision.detector import BallDetector
 from ur_rg2_vision.learned import SHIPPED_MODEL, BallModel, LearnedBallDetector
 from ur_rg2_vision.localize import locate_ball
-from ur_rg2_vision.scenes import hard_scenes
 
 ROOT = Path(__file__).resolve().parents[1]
 LEARNED, COLOR = (0, 220, 0), (255, 0, 255)  # RGB

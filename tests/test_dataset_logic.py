@@ -7,18 +7,15 @@ import numpy as np
 import pytest
 from ur_rg2_common.camera_pose import optical_rotation
 from ur_rg2_vision.dataset import (
-    REACH,
-    Camera,
     DatasetWriter,
-    PlacementError,
     Progress,
     hidden_fraction,
     is_val,
     label_text,
-    plan_placement,
-    sphere_box,
     yolo_label,
 )
+from ur_rg2_vision.placement import REACH, Camera, PlacementError, plan_placement
+from ur_rg2_vision.sphere import sphere_box
 
 K = np.array([[589.0, 0.0, 320.0], [0.0, 589.0, 239.0], [0.0, 0.0, 1.0]])
 DEFAULT_CAMERA = Camera((1.3, -1.1, 0.95), (0.3, -0.1, 0.1), K, 640, 480)

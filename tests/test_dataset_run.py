@@ -16,9 +16,11 @@ import pytest
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 from ur_rg2_common.tf_buffer import quaternion_from_matrix
-from ur_rg2_vision.dataset import Camera, sphere_box, yolo_label
+from ur_rg2_vision.dataset import yolo_label
 from ur_rg2_vision.dataset_run import Sampler, SimError, SimRecord, parse_args, run
+from ur_rg2_vision.placement import Camera
 from ur_rg2_vision.ros_image import rgb_to_image
+from ur_rg2_vision.sphere import sphere_box
 
 WIDTH, HEIGHT = 160, 120
 K = np.array([[147.3, 0.0, 80.0], [0.0, 147.3, 59.0], [0.0, 0.0, 1.0]])

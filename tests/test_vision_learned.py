@@ -25,8 +25,10 @@ from std_msgs.msg import Header
 from test_vision_scenes import Box, K, Scene, Sphere, project, render
 from ur_rg2_common.camera_pose import optical_rotation
 from ur_rg2_common.contract import IMAGE_QOS
-from ur_rg2_vision import scene_dataset
-from ur_rg2_vision.dataset import COLOR_GROUPS, sphere_box, yolo_label
+from ur_rg2_detector import scene_dataset
+from ur_rg2_detector.labelled_scenes import detector_scenes, plain_to_the_eye
+from ur_rg2_detector.scenes import hard_scenes
+from ur_rg2_vision.dataset import yolo_label
 from ur_rg2_vision.learned import (
     MODEL_FILE,
     SETTINGS_FILE,
@@ -36,8 +38,9 @@ from ur_rg2_vision.learned import (
     depth_relief,
 )
 from ur_rg2_vision.localize import locate_ball
+from ur_rg2_vision.placement import COLOR_GROUPS
 from ur_rg2_vision.ros_image import rgb_to_image
-from ur_rg2_vision.scenes import detector_scenes, hard_scenes, plain_to_the_eye
+from ur_rg2_vision.sphere import sphere_box
 from ur_rg2_vision.vision_node import VisionNode
 
 BIN = Path(sys.executable).parent
@@ -303,7 +306,7 @@ def test_a_missing_or_corrupt_model_dir_is_refused_at_start_up(tmp_path, breakag
 def test_the_exported_decoding_gives_back_the_box_of_the_training_targets():
     """targets() and Exported's decoding agree: a network that outputs its targets."""
     torch = pytest.importorskip('torch')
-    from ur_rg2_learning.detector_net import STRIDE, Exported, targets
+    from ur_rg2_detector.detector_net import STRIDE, Exported, targets
     boxes = [(40.0, 30.0, 72.0, 54.0), None]
     heat, regress, index = targets(boxes, 120, 160)
 
@@ -329,7 +332,7 @@ def test_the_flip_test_sees_a_mirrored_frame_as_its_mirror_image():
     network alone, untrained, is not symmetric.
     """
     torch = pytest.importorskip('torch')
-    from ur_rg2_learning.detector_net import BallNet, Exported
+    from ur_rg2_detector.detector_net import BallNet, Exported
     torch.manual_seed(1)
     net = BallNet(in_channels=4).eval()
     with torch.no_grad():
@@ -355,7 +358,7 @@ def test_an_exported_model_loads_back_to_train_further(tmp_path):
     """train_detector --init: the network loaded from model.onnx computes what the file does."""
     torch = pytest.importorskip('torch')
     ort = pytest.importorskip('onnxruntime')
-    from ur_rg2_learning.detector_net import BallNet, Exported, load_exported
+    from ur_rg2_detector.detector_net import BallNet, Exported, load_exported
     torch.manual_seed(0)
     trained = BallNet()
     with torch.no_grad():  # batch norms with statistics and scales of their own
@@ -387,7 +390,7 @@ def test_an_exported_model_loads_back_to_train_further(tmp_path):
 def test_training_can_drop_the_balls_that_do_not_stand_out(tmp_path):
     """train_detector --min-contrast: a ball within V of its surroundings' value goes."""
     import cv2
-    from ur_rg2_learning.train_detector import ball_contrast, plain_pairs
+    from ur_rg2_detector.crops import ball_contrast, plain_pairs
     pairs = []
     for name, value in (('faint', 0.53), ('plain', 0.8), ('none', None)):
         bgr = np.full((120, 160, 3), 0.5 * 255, np.uint8)
@@ -406,8 +409,8 @@ def test_training_can_drop_the_balls_that_do_not_stand_out(tmp_path):
 def test_hard_negatives_are_the_peaks_off_the_ball_and_crops_centre_on_them():
     """train_detector --hard-negatives: the network's own false peaks are what it trains on."""
     torch = pytest.importorskip('torch')
-    from ur_rg2_learning.detector_net import STRIDE, BallNet
-    from ur_rg2_learning.train_detector import augment, hard_negatives
+    from ur_rg2_detector.crops import augment, hard_negatives
+    from ur_rg2_detector.detector_net import STRIDE, BallNet
     net = BallNet()
     with torch.no_grad():  # the same score everywhere: every cell is a peak, at cx = col * 8
         net.head[-1].weight.zero_()
@@ -434,7 +437,7 @@ def test_hard_negatives_are_the_peaks_off_the_ball_and_crops_centre_on_them():
 def test_a_ball_mostly_hidden_is_neither_missed_nor_falsely_found(tmp_path):
     """evaluate_detector: a ball under 40 % visible is difficult, as PASCAL VOC's."""
     import cv2
-    from ur_rg2_learning.evaluate_detector import Scores, evaluate
+    from ur_rg2_detector.evaluate_detector import Scores, evaluate
     for kind in ('images', 'labels', 'meta'):
         (tmp_path / kind / 'val').mkdir(parents=True)
     pairs, boxes = [], {}

@@ -18,11 +18,11 @@ import numpy as np
 import pybullet
 import pytest
 from ur_rg2_common.contract import ARM_JOINTS
+from ur_rg2_detector.scenes import HIDDEN, MIN_VISIBLE, ball_truth
 from ur_rg2_sim.camera import Camera, CameraConfig
 from ur_rg2_sim.world import SimWorld, WorldConfig
 from ur_rg2_vision.detector import BallDetector
 from ur_rg2_vision.localize import locate_first
-from ur_rg2_vision.scenes import HIDDEN, MIN_VISIBLE, ball_truth
 
 RADIUS = 0.03
 DEFAULT = CameraConfig()

@@ -1,6 +1,6 @@
 """Balls of any size, without configuration: frames rendered by the sim, and the node in a graph.
 
-Seeded frames (:mod:`ur_rg2_vision.scenes`): one red ball of 1.5-8 cm radius, 0.5-2 m from the
+Seeded frames (:mod:`ur_rg2_detector.scenes`): one red ball of 1.5-8 cm radius, 0.5-2 m from the
 camera, anywhere in the image, on the floor or in the air; and red cubes, boxes, flat patches
 and balls of other colours of the same sizes. The vision at its defaults (``ball_radius`` 0:
 measured). The radius errors are in the assertion messages and printed (``pytest -s``).
@@ -16,9 +16,9 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import Image
 from ur_rg2_common.camera_pose import optical_rotation
 from ur_rg2_common.contract import IMAGE_QOS
+from ur_rg2_detector.scenes import MIN_VISIBLE, no_balls, sized_balls
 from ur_rg2_vision.detector import BallDetector
 from ur_rg2_vision.localize import locate_first
-from ur_rg2_vision.scenes import MIN_VISIBLE, no_balls, sized_balls
 from ur_rg2_vision.vision_node import VisionNode
 
 BALLS = 40

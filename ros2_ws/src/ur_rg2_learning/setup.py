@@ -23,8 +23,6 @@ setup(
         'console_scripts': [
             'train_policy = ur_rg2_learning.train:main',
             'evaluate_policy = ur_rg2_learning.evaluate:main',
-            'train_detector = ur_rg2_learning.train_detector:main',
-            'evaluate_detector = ur_rg2_learning.evaluate_detector:main',
             'policy = ur_rg2_learning.entry:policy',
         ],
     },

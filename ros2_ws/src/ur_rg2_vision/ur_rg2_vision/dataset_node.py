@@ -1,8 +1,8 @@
 """Executable ``dataset``: drive a running sim to write a labelled YOLO data set of the ball.
 
 This module holds the ROS side (the sim's parameters, its topics, the waits) and ``main``; the
-options, the sampler and the loop are in :mod:`ur_rg2_vision.dataset_run`, the geometry and
-the files in :mod:`ur_rg2_vision.dataset`.
+options, the sampler and the loop are in :mod:`ur_rg2_vision.dataset_run`, the placements in
+:mod:`ur_rg2_vision.placement`, the labels and the files in :mod:`ur_rg2_vision.dataset`.
 """
 
 from __future__ import annotations

@@ -3,7 +3,8 @@
 :class:`Sampler` places the ball for each sample through a driver of the sim (the ROS side,
 :class:`ur_rg2_vision.dataset_node.SimDriver`: parameters set, frames, true poses and
 /tf_static collected, waits), waits for a frame that shows it at rest and labels it; the
-geometry and the files are in :mod:`ur_rg2_vision.dataset`.
+placements are in :mod:`ur_rg2_vision.placement`, the labels and the files in
+:mod:`ur_rg2_vision.dataset`.
 """
 
 from __future__ import annotations
@@ -19,20 +20,16 @@ import numpy as np
 from ur_rg2_common.tf_buffer import pose_matrix
 
 from ur_rg2_vision.dataset import (
-    REACH,
-    Camera,
     DatasetWriter,
-    Placement,
-    PlacementError,
     Progress,
     check_writable,
     depth_png,
     hidden_fraction,
-    plan_placement,
-    sphere_box,
     yolo_label,
 )
+from ur_rg2_vision.placement import REACH, Camera, Placement, PlacementError, plan_placement
 from ur_rg2_vision.ros_image import camera_matrix, image_to_depth, image_to_rgb
+from ur_rg2_vision.sphere import sphere_box
 
 SIM_NODE = 'ur_rg2_sim'
 SIM_PARAMETERS = ('robot_model', 'ball_radius', 'ball_position', 'ball_color',

@@ -7,7 +7,7 @@ and its ``inputs``: ``["rgb"]`` (the default), or ``["rgb", "depth_relief"]`` fo
 also sees the depth's relief (:func:`depth_relief`) as a fourth channel. Output layout: 1 x
 (4 + classes) x N rows, or their transpose; boxes are (cx, cy, w, h) in input pixels of the
 letterboxed frame (scaled to fit, centred, grey around it), class scores 0-1. The shipped
-model (:mod:`ur_rg2_learning.detector_net`, a CenterNet trained by this project, Apache-2.0)
+model (:mod:`ur_rg2_detector.detector_net`, a CenterNet trained by this project, Apache-2.0)
 gives that layout, as does an ultralytics YOLOv8 export: a user's own model of that layout
 drops in with a ``detector.json`` beside it. ONNX Runtime (MIT; imported only when a model is
 loaded) runs it on the CPU on one thread.
@@ -15,7 +15,7 @@ loaded) runs it on the CPU on one thread.
 The network decides: each of its boxes over the threshold is a ball candidate, most confident
 first, as a :class:`~ur_rg2_vision.detector.Detection` like the colour detector's: the sphere
 whose outline has this box (off the optical axis an ellipse, see
-:func:`ur_rg2_vision.dataset.sphere_box`) gives the image of its centre and its radius as seen
+:func:`ur_rg2_vision.sphere.sphere_box`) gives the image of its centre and its radius as seen
 on the axis; its pixels are the disc inside the box, and :mod:`ur_rg2_vision.localize` fits
 the sphere to their depth, which gives the 3D centre (and turns down a box on a flat disc or a
 cube). No colour rule finds, refines or accepts a ball.
@@ -30,8 +30,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ur_rg2_vision.dataset import sphere_box
 from ur_rg2_vision.detector import BallDetector, Detection, HsvRange, least_squares_step
+from ur_rg2_vision.sphere import sphere_box
 
 MODEL_FILE = 'model.onnx'
 SETTINGS_FILE = 'detector.json'

@@ -12,7 +12,7 @@ the node's whole pipeline (the detector's candidates, the first that the depth c
 sphere gives the 3D centre): right when that centre is within the ball's radius of the true
 one. Each overall and per colour group
 (saturated, pastel, white, grey, dark, patterned); the pipeline and the groups need the depth
-and meta files that ``scripts/detector-data`` (:mod:`ur_rg2_vision.scene_dataset`) writes
+and meta files that ``scripts/detector-data`` (:mod:`ur_rg2_detector.scene_dataset`) writes
 beside the images.
 ``--thresholds T1,T2,...`` instead prints both overall at each of these score thresholds: to
 choose the node's threshold on a validation split, not on the held-out one.
@@ -30,8 +30,9 @@ import cv2
 import numpy as np
 from ur_rg2_vision.detector import DEFAULT_MIN_RADIUS_PX, BallDetector
 from ur_rg2_vision.learned import BallModel, LearnedBallDetector, ModelError
-from ur_rg2_vision.scenes import MIN_VISIBLE
 import yaml
+
+from ur_rg2_detector.scenes import MIN_VISIBLE
 
 IOU = 0.5
 GROUPS = ('saturated', 'pastel', 'white', 'grey', 'dark', 'patterned')

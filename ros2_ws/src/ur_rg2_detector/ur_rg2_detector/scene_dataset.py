@@ -1,13 +1,13 @@
 """Write the ball detector's data set from rendered scenes, without a running sim. No ROS.
 
-``python -m ur_rg2_vision.scene_dataset --count N --out DIR [--seed S]``
-(``scripts/detector-data``) renders :func:`ur_rg2_vision.scenes.detector_scenes` with the
-sim's own world and camera and writes the ``dataset`` layout (``images``, ``labels`` in YOLO
-format, ``data.yaml``) plus, per sample, ``depth/SPLIT/NAME.png`` (16-bit, millimetres, 0 = no
-return) and ``meta/SPLIT/NAME.json`` (colour group, camera matrix, the ball's centre in the
-optical frame and radius, m): what ``evaluate_detector`` needs to run the vision node's whole
-pipeline per colour group. A run appends to what is there; interrupted, every image has its
-label.
+``python -m ur_rg2_detector.scene_dataset --count N --out DIR [--seed S]``
+(``scripts/detector-data``) renders :func:`ur_rg2_detector.labelled_scenes.detector_scenes`
+with the sim's own world and camera and writes the ``dataset`` layout (``images``, ``labels``
+in YOLO format, ``data.yaml``) plus, per sample, ``depth/SPLIT/NAME.png`` (16-bit, millimetres,
+0 = no return) and ``meta/SPLIT/NAME.json`` (colour group, camera matrix, the ball's centre in
+the optical frame and radius, m): what ``evaluate_detector`` needs to run the vision node's
+whole pipeline per colour group. A run appends to what is there; interrupted, every image has
+its label.
 """
 
 import argparse
@@ -15,9 +15,9 @@ import json
 import sys
 
 from ur_rg2_sim.camera import choose_renderer
-
 from ur_rg2_vision.dataset import DatasetWriter, Progress, depth_png
-from ur_rg2_vision.scenes import detector_scenes
+
+from ur_rg2_detector.labelled_scenes import detector_scenes
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from ur_rg2_common.contract import ARM_JOINTS
 from ur_rg2_common.tf_buffer import pose_matrix
-from ur_rg2_motion import kinematics
+from ur_rg2_motion import closed_form, kinematics
 from ur_rg2_motion.kinematics import ArmKinematics, Box, KinematicsError
 from ur_rg2_sim.robot_model import ROBOT_MODELS, write_robot_urdf
 from ur_rg2_sim.world import SimWorld, WorldConfig
@@ -35,7 +35,7 @@ def pose_errors(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
 def test_model_is_read_from_the_description(urdf):
     model, text = urdf
     arm = ArmKinematics.from_urdf(text)
-    assert arm.dh == kinematics.UR_DH[model]
+    assert arm.dh == closed_form.UR_DH[model]
     # base_link -> base: 180 degrees about z; the RG2's TCP straight out of the flange.
     assert np.allclose(arm.base_in_base_link, np.diag([-1.0, -1.0, 1.0, 1.0]), atol=1e-9)
     assert np.allclose(arm.tcp_in_flange[:3, :3], np.eye(3))
@@ -48,13 +48,13 @@ def test_every_inverse_solution_reproduces_the_pose(urdf):
     arm = ArmKinematics.from_urdf(urdf[1])
     rng = np.random.default_rng(20261123)
     joints = random_joints(arm, rng, POSES)
-    flanges = kinematics.forward(arm.dh, joints)
+    flanges = closed_form.forward(arm.dh, joints)
     counts = []
     for q, flange in zip(joints, flanges):
-        solutions = kinematics.inverse(arm.dh, flange, wrist_3=q[5])
+        solutions = closed_form.inverse(arm.dh, flange, wrist_3=q[5])
         counts.append(len(solutions))
         assert solutions, f'no solution for the pose of {q}'
-        position, angle = pose_errors(kinematics.forward(arm.dh, np.array(solutions)), flange)
+        position, angle = pose_errors(closed_form.forward(arm.dh, np.array(solutions)), flange)
         assert position < TOLERANCE and angle < TOLERANCE, (q, position, angle)
         # The joints the pose came from are one of the branches (modulo 2 pi).
         wrapped = np.remainder(np.array(solutions) - q + math.pi, 2 * math.pi) - math.pi
@@ -107,7 +107,7 @@ def test_forward_kinematics_matches_the_physics_engine(urdf):
             to_base_link = np.linalg.inv(base_link)
             flange = to_base_link @ pose_matrix(*world.link_pose('tool0'))
             tcp = to_base_link @ pose_matrix(*world.link_pose('rg2_tcp'))
-            for physics, ours in ((flange, arm.base_in_base_link @ kinematics.forward(arm.dh, q)),
+            for physics, ours in ((flange, arm.base_in_base_link @ closed_form.forward(arm.dh, q)),
                                   (tcp, arm.tcp_pose(q))):
                 position, angle = pose_errors(physics, ours)
                 # pybullet computes in single precision.

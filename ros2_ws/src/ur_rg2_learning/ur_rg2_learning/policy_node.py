@@ -33,9 +33,10 @@ from ur_rg2_common.contract import (
 from ur_rg2_common.episode import EpisodeMarkers
 from ur_rg2_common.parameters import ParameterSpec, declare_parameters
 from ur_rg2_common.spin import run_node
-from ur_rg2_motion.kinematics import BASE_LINK, ArmKinematics, KinematicsError
+from ur_rg2_motion.kinematics import ArmKinematics, KinematicsError
 from ur_rg2_motion.messages import FRAME_WAIT_S, gripper_goal, trajectory_goal
 from ur_rg2_motion.robot_state import RobotState, subscribe
+from ur_rg2_motion.urdf import BASE_LINK
 
 from ur_rg2_learning import PICK_ID, REACH_ID
 from ur_rg2_learning.actor import SHIPPED, Actor, PolicyError, shipped_policy

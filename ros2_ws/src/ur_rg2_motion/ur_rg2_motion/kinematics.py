@@ -1,14 +1,7 @@
-"""Closed-form forward and inverse kinematics of a UR arm (UR5, UR3, UR5e, UR3e). Plain Python.
+"""A UR arm (UR5, UR3, UR5e, UR3e) with the RG2: TCP poses <-> joint positions. Plain Python.
 
-The arm is described by Universal Robots' published DH parameters. The DH base frame is the
-UR controller's ``base`` frame (ROS's ``base``, 180 degrees about z from ``base_link``) and the
-DH flange frame is ``tool0``. The inverse is the analytic solution of K. P. Hawkins, "Analytic
-Inverse Kinematics for the Universal Robots UR-5/UR-10 Arms" (2013), the one behind ROS's
-ur_kinematics: shoulder pan from the wrist centre's distance to the base axis, wrist 2 from
-the flange's height along the shoulder's axis, wrist 3 from the flange's orientation, then the
-planar shoulder-elbow-wrist 1 triangle. Two choices each for shoulder, wrist and elbow give up
-to 8 solutions. Forward kinematics is vectorised with numpy (many joint vectors, or every
-frame of the chain, at once); the inverse is scalar, which for one pose is faster.
+The closed-form forward and inverse kinematics and the DH tables are in
+ur_rg2_motion.closed_form, the reading of the robot description in ur_rg2_motion.urdf.
 
 :class:`ArmKinematics` adds what a controller needs on top: the ``base_link``->DH base and
 ``tool0``->TCP transforms (read from the robot description), the joint limits, the floor and
@@ -31,50 +24,25 @@ import xml.etree.ElementTree as ET
 import numpy as np
 from ur_rg2_common.contract import ARM_JOINTS
 
-BASE_LINK = 'base_link'
+from ur_rg2_motion.closed_form import UR_DH, DhParameters, KinematicsError, forward, inverse
+from ur_rg2_motion.urdf import (
+    FLANGE,
+    _arm_path,
+    _chain_pose,
+    _finger_half,
+    _finite_offset,
+    fixed_transform,
+    urdf_joint_limits,
+    urdf_joints,
+)
+
 # Defaults of the checks against the sim's floor and pedestal (the motion node's parameters).
 FLOOR_CLEARANCE = 0.005  # m that the TCP, finger tips, wrist and elbow keep above the floor
 PEDESTAL_HALF_WIDTH = 0.11  # m, half the width of the column under base_link
-FLANGE = 'tool0'
 TCP = 'rg2_tcp'
 
-# Below these the formulas lose a degree of freedom (see ArmKinematics.solve).
-_WRIST_SINGULAR = 1e-9  # |sin(wrist_2)|: wrist 1 and wrist 3 axes parallel
+# Below this the formulas lose a degree of freedom (see ArmKinematics.solve).
 _BOUNDARY_SINGULAR = 1e-6  # |sin(elbow)| or wrist centre distance - d4 (m): workspace boundary
-# acos arguments this far beyond +-1 are rounding, not an unreachable pose.
-_ACOS_SLACK = 1e-9
-
-
-@dataclass(frozen=True)
-class DhParameters:
-    """Universal Robots' DH parameters of one arm model, metres."""
-
-    d1: float
-    a2: float
-    a3: float
-    d4: float
-    d5: float
-    d6: float
-
-    @property
-    def a(self) -> np.ndarray:
-        """Link lengths a_i."""
-        return np.array([0.0, self.a2, self.a3, 0.0, 0.0, 0.0])
-
-    @property
-    def d(self) -> np.ndarray:
-        """Link offsets d_i."""
-        return np.array([self.d1, 0.0, 0.0, self.d4, self.d5, self.d6])
-
-
-# From Universal Robots' "DH parameters for calculations of kinematics and dynamics" (the same
-# values as ur_description's config/<model>/default_kinematics.yaml).
-UR_DH = {
-    'ur5': DhParameters(0.089159, -0.425, -0.39225, 0.10915, 0.09465, 0.0823),
-    'ur3': DhParameters(0.1519, -0.24365, -0.21325, 0.11235, 0.08535, 0.0819),
-    'ur5e': DhParameters(0.1625, -0.425, -0.3922, 0.1333, 0.0997, 0.0996),
-    'ur3e': DhParameters(0.15185, -0.24355, -0.2132, 0.13105, 0.08535, 0.0921),
-}
 # How far (m) the DH model may put tool0 from where the description's chain has it.
 CHAIN_TOLERANCE = 1e-3
 # Joint vectors the DH model is checked against the chain at (rad): zero and a spread.
@@ -84,99 +52,6 @@ _CHAIN_SAMPLES = np.array([
     [-2.0, -0.4, -1.9, 2.2, -0.7, 1.5],
     [1.3, -2.4, 0.8, 0.4, 2.6, -2.2],
 ])
-_ALPHA = np.array([math.pi / 2, 0.0, 0.0, math.pi / 2, -math.pi / 2, 0.0])
-_COS_ALPHA = np.round(np.cos(_ALPHA))  # exactly 0 and +-1, as the DH table means
-_SIN_ALPHA = np.round(np.sin(_ALPHA))
-
-
-class KinematicsError(ValueError):
-    """A target pose has no acceptable joint solution; ``reason`` says which check failed.
-
-    Reasons: ``invalid`` (not a finite rigid transform), ``unreachable`` (out of the arm's
-    reach), ``singular`` (on the workspace boundary, where the arm loses a degree of freedom),
-    ``joint_limits``, ``floor`` (the arm or the TCP would go below the floor), ``pedestal``.
-    """
-
-    def __init__(self, reason: str, message: str) -> None:
-        super().__init__(message)
-        self.reason = reason
-
-
-def forward(dh: DhParameters, q: np.ndarray, all_frames: bool = False) -> np.ndarray:
-    """Return the DH base -> flange transforms (..., 4, 4) of joint vectors ``q`` (..., 6).
-
-    With ``all_frames`` the result is (..., 6, 4, 4): base -> frame i for i = 1..6.
-    """
-    q = np.asarray(q, dtype=float)
-    ct, st = np.cos(q), np.sin(q)
-    zero, one = np.zeros_like(q), np.ones_like(q)
-    links = np.stack([
-        ct, -st * _COS_ALPHA, st * _SIN_ALPHA, dh.a * ct,
-        st, ct * _COS_ALPHA, -ct * _SIN_ALPHA, dh.a * st,
-        zero, zero + _SIN_ALPHA, zero + _COS_ALPHA, zero + dh.d,
-        zero, zero, zero, one,
-    ], axis=-1).reshape(q.shape + (4, 4))
-    frames = [links[..., 0, :, :]]
-    for i in range(1, 6):
-        frames.append(frames[-1] @ links[..., i, :, :])
-    return np.stack(frames, axis=-3) if all_frames else frames[-1]
-
-
-def inverse(dh: DhParameters, pose: np.ndarray, wrist_3: float = 0.0) -> list[tuple]:
-    """Return every joint solution (up to 8 tuples of 6, in [-pi, pi]) of a flange pose.
-
-    ``pose`` is DH base -> flange (4x4). Branches: shoulder left/right x wrist up/down x elbow
-    up/down, the ones that exist. Where wrist 1 and wrist 3 are aligned (wrist 2 at 0 or pi)
-    only their sum is defined: wrist 3 is then set to ``wrist_3`` (the current one keeps the
-    wrist still). Scalar arithmetic: for one pose it is several times faster than numpy.
-    """
-    (nx, ox, zx, px), (ny, oy, zy, py), (nz, oz, zz, pz) = pose.tolist()[:3]
-    d1, a2, a3, d4, d5, d6 = dh.d1, dh.a2, dh.a3, dh.d4, dh.d5, dh.d6
-    remainder, tau = math.remainder, 2 * math.pi
-    solutions = []
-    # Shoulder pan: the wrist centre (flange minus d6 along z) lies d4 off the arm's plane.
-    wx, wy = px - d6 * zx, py - d6 * zy
-    radius = math.hypot(wx, wy)
-    if radius == 0.0 or abs(d4) > radius * (1 + _ACOS_SLACK):
-        return solutions
-    spread = math.acos(min(d4 / radius, 1.0))
-    heading = math.atan2(wy, wx) + math.pi / 2
-    for q1 in (heading + spread, heading - spread):
-        c1, s1 = math.cos(q1), math.sin(q1)
-        # Wrist 2: the flange's offset along the shoulder axis is d4 + d6 cos(q5).
-        height = (px * s1 - py * c1 - d4) / d6
-        if abs(height) > 1 + _ACOS_SLACK:
-            continue
-        tilt = math.acos(max(-1.0, min(height, 1.0)))
-        nc, oc, zc = nx * c1 + ny * s1, ox * c1 + oy * s1, zx * c1 + zy * s1
-        u, v = nx * s1 - ny * c1, ox * s1 - oy * c1
-        for q5 in (tilt, -tilt):
-            c5, s5 = math.cos(q5), math.sin(q5)
-            # |(u, v)| is |sin q5| from the orientation, exact where acos near 1 is not.
-            if math.hypot(u, v) < _WRIST_SINGULAR:
-                q6 = wrist_3
-            else:
-                # Wrist 3 from the flange's x and y axes seen along the shoulder axis.
-                sign = 1.0 if s5 > 0 else -1.0
-                q6 = math.atan2(-v * sign, u * sign)
-            c6, s6 = math.cos(q6), math.sin(q6)
-            # The planar chain shoulder lift, elbow, wrist 1 from frame 1 to frame 4.
-            x04x = -s5 * zc - c5 * (s6 * oc - c6 * nc)
-            x04y = c5 * (nz * c6 - oz * s6) - zz * s5
-            p13x = d5 * (s6 * nc + c6 * oc) - d6 * zc + px * c1 + py * s1
-            p13y = pz - d1 - d6 * zz + d5 * (oz * c6 + nz * s6)
-            c3 = (p13x * p13x + p13y * p13y - a2 * a2 - a3 * a3) / (2 * a2 * a3)
-            if abs(c3) > 1 + _ACOS_SLACK:
-                continue
-            bend = math.acos(max(-1.0, min(c3, 1.0)))
-            for q3 in (bend, -bend):
-                ea, eb = a2 + a3 * math.cos(q3), a3 * math.sin(q3)
-                q2 = math.atan2(ea * p13y - eb * p13x, ea * p13x + eb * p13y)
-                c23, s23 = math.cos(q2 + q3), math.sin(q2 + q3)
-                q4 = math.atan2(c23 * x04y - s23 * x04x, x04x * c23 + x04y * s23)
-                solutions.append((remainder(q1, tau), remainder(q2, tau), remainder(q3, tau),
-                                  remainder(q4, tau), remainder(q5, tau), remainder(q6, tau)))
-    return solutions
 
 
 def rotation_angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -411,116 +286,6 @@ def _where(target: np.ndarray) -> str:
     return f'the pose at ({x:.3f}, {y:.3f}, {z:.3f}) m'
 
 
-# -- the robot description ----------------------------------------------------------------------
-# ur_rg2_sim.frames parses the whole tree for the sim, but imports pybullet; this module needs
-# only the fixed joints and the arm's limits, without it.
-
-def urdf_joints(urdf: str) -> dict[str, tuple]:
-    """Return each joint by its child link: (name, type, parent, origin at zero, axis)."""
-    try:
-        root = ET.fromstring(urdf)
-    except ET.ParseError as error:
-        raise KinematicsError(
-            'invalid', f'the robot description does not parse: {error}') from None
-    joints = {}
-    for joint in root.iter('joint'):
-        origin = joint.find('origin')
-        roll, pitch, yaw = _floats(origin, 'rpy')
-        axis = joint.find('axis')
-        joints[joint.find('child').get('link')] = (
-            joint.get('name'), joint.get('type'), joint.find('parent').get('link'),
-            _rpy_matrix(_floats(origin, 'xyz'), roll, pitch, yaw),
-            np.array(_floats(axis, 'xyz') if axis is not None else (1.0, 0.0, 0.0)))
-    return joints
-
-
-def urdf_chain(urdf: str) -> dict[tuple[str, str], np.ndarray]:
-    """Return each joint's origin (parent -> child at zero motion) by (parent, child)."""
-    return {(parent, child): origin
-            for child, (_, _, parent, origin, _) in urdf_joints(urdf).items()}
-
-
-def _arm_path(joints: dict[str, tuple]) -> list[tuple]:
-    """Return the joints from base_link to tool0, checking that the six arm joints are on it."""
-    missing = [frame for frame in (BASE_LINK, FLANGE)
-               if frame not in joints and not any(j[2] == frame for j in joints.values())]
-    if missing:
-        raise KinematicsError('invalid', f"the robot description has no {' or '.join(missing)} "
-                              'frame')
-    path, link = [], FLANGE
-    while link != BASE_LINK:
-        if link not in joints:
-            raise KinematicsError('invalid', f'the robot description has no chain from '
-                                  f'{BASE_LINK} to {FLANGE} (it stops at {link})')
-        path.append(joints[link])
-        link = joints[link][2]
-    path.reverse()
-    names = [joint[0] for joint in path if joint[1] != 'fixed']
-    absent = [name for name in ARM_JOINTS if name not in names]
-    if absent or names != list(ARM_JOINTS):
-        raise KinematicsError(
-            'invalid', f"the robot description's chain from {BASE_LINK} to {FLANGE} "
-            + (f"lacks {', '.join(absent)}" if absent else f"moves {', '.join(names)}, not the "
-               'six UR arm joints in order'))
-    return path
-
-
-def _chain_pose(path: list[tuple], q: Sequence[float]) -> np.ndarray:
-    """Return base_link -> tool0 along the description's joints at arm joints ``q``."""
-    pose = np.eye(4)
-    angles = iter(q)
-    for _, kind, _, origin, axis in path:
-        pose = pose @ origin
-        if kind != 'fixed':
-            pose = pose @ _axis_rotation(axis, next(angles))
-    return pose
-
-
-def _axis_rotation(axis: np.ndarray, angle: float) -> np.ndarray:
-    x, y, z = axis / np.linalg.norm(axis)
-    c, s, t = math.cos(angle), math.sin(angle), 1 - math.cos(angle)
-    m = np.eye(4)
-    m[:3, :3] = [[t * x * x + c, t * x * y - s * z, t * x * z + s * y],
-                 [t * x * y + s * z, t * y * y + c, t * y * z - s * x],
-                 [t * x * z - s * y, t * y * z + s * x, t * z * z + c]]
-    return m
-
-
-def _finite_offset(offset: Sequence[float]) -> tuple[float, float, float]:
-    values = tuple(float(v) for v in offset)
-    if len(values) != 3 or not all(map(math.isfinite, values)):
-        raise KinematicsError('invalid', f'the TCP offset {list(values)} is not [x, y, z] in m')
-    return values
-
-
-def fixed_transform(chain: dict[tuple[str, str], np.ndarray], ancestor: str,
-                    frame: str) -> np.ndarray:
-    """Return ``ancestor`` -> ``frame`` through the joints of ``chain`` (at zero motion)."""
-    parents = {child: (parent, pose) for (parent, child), pose in chain.items()}
-    pose = np.eye(4)
-    link = frame
-    while link != ancestor:
-        if link not in parents:
-            raise KinematicsError(
-                'invalid', f'the robot description has no chain from {ancestor} to {frame}')
-        parent, edge = parents[link]
-        pose = edge @ pose
-        link = parent
-    return pose
-
-
-def urdf_joint_limits(urdf: str) -> dict[str, tuple[float, float]]:
-    """Return (lower, upper) of each revolute joint of robot description text ``urdf``."""
-    limits = {}
-    for joint in ET.fromstring(urdf).iter('joint'):
-        limit = joint.find('limit')
-        if joint.get('type') == 'revolute' and limit is not None:
-            limits[joint.get('name')] = (float(limit.get('lower')), float(limit.get('upper')))
-        elif joint.get('type') == 'continuous':
-            limits[joint.get('name')] = (-math.inf, math.inf)
-    return limits
-
-
 def urdf_velocity_limits(urdf: str) -> np.ndarray:
     """Return the six arm joints' velocity limits (rad/s) from robot description text."""
     limits = {}
@@ -532,38 +297,6 @@ def urdf_velocity_limits(urdf: str) -> np.ndarray:
     if missing:
         raise KinematicsError('invalid', f"no velocity limit for {', '.join(missing)}")
     return np.array([limits[name] for name in ARM_JOINTS])
-
-
-def _finger_half(urdf: str) -> float:
-    # The finger links' boxes are centred on the finger frame: half the longest box is how far
-    # the pads reach past it along the gripper's z.
-    halves = [0.0]
-    for link in ET.fromstring(urdf).iter('link'):
-        if link.get('name', '').endswith('_finger'):
-            for box in link.iter('box'):
-                halves.append(float(box.get('size').split()[2]) / 2)
-    return max(halves)
-
-
-def _floats(element, attribute: str) -> tuple[float, float, float]:
-    if element is None or element.get(attribute) is None:
-        return (0.0, 0.0, 0.0)
-    x, y, z = (float(v) for v in element.get(attribute).split())
-    return (x, y, z)
-
-
-def _rpy_matrix(xyz: Sequence[float], roll: float, pitch: float, yaw: float) -> np.ndarray:
-    cr, sr = math.cos(roll), math.sin(roll)
-    cp, sp = math.cos(pitch), math.sin(pitch)
-    cy, sy = math.cos(yaw), math.sin(yaw)
-    m = np.eye(4)
-    m[:3, :3] = [
-        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-        [-sp, cp * sr, cp * cr],
-    ]
-    m[:3, 3] = xyz
-    return m
 
 
 def arm_on_pedestal(urdf: str, pedestal_height: float,

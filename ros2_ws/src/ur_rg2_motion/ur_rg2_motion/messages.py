@@ -24,7 +24,7 @@ from ur_rg2_common.tf_buffer import (
     transform_point,
 )
 
-from ur_rg2_motion.kinematics import BASE_LINK
+from ur_rg2_motion.urdf import BASE_LINK
 
 # A quaternion this close to unit length is a client's rounding: normalised without a word.
 QUATERNION_NORM_TOLERANCE = 1e-3

@@ -32,7 +32,7 @@ from ur_rg2_common.spin import run_node
 from ur_rg2_common.tf_buffer import FrameLookupError, pose_matrix
 
 from ur_rg2_motion.goals import ControllerArm
-from ur_rg2_motion.kinematics import BASE_LINK, ArmKinematics, KinematicsError
+from ur_rg2_motion.kinematics import ArmKinematics, KinematicsError
 from ur_rg2_motion.messages import FRAME_WAIT_S, finite, pose_of, unit_quaternion
 from ur_rg2_motion.pick import MIN_MOVE_DURATION, PickError, Progress, no_progress, run_pick
 from ur_rg2_motion.pick_action import REFUSED, PickOutcome, PickRun, attempt
@@ -40,6 +40,7 @@ from ur_rg2_motion.pick_server import PickActionServer
 from ur_rg2_motion.planning import jog_target, limit_tcp_speed, plan_move
 from ur_rg2_motion.robot_state import NotReceivedError, RobotState, subscribe
 from ur_rg2_motion.settings import PARAMETERS, pick_settings
+from ur_rg2_motion.urdf import BASE_LINK
 from ur_rg2_motion.waiting import WaitingRequests
 
 NODE_NAME = 'ur_rg2_motion'

@@ -15,8 +15,9 @@ import time
 
 import numpy as np
 
-from ur_rg2_motion.kinematics import BASE_LINK, KinematicsError
+from ur_rg2_motion.kinematics import KinematicsError
 from ur_rg2_motion.pick import PLANNING, PickCancelledError, PickError
+from ur_rg2_motion.urdf import BASE_LINK
 
 # Why a pick stops when its action client cancels it.
 CANCELED = "canceled by the action's client; the arm holds where it was"

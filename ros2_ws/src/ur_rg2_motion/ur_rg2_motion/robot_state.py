@@ -32,7 +32,6 @@ from ur_rg2_common.inbox import Inbox
 from ur_rg2_common.tf_buffer import PULL_PERIOD_S, FrameLookupError, TransformBuffer
 
 from ur_rg2_motion.kinematics import (
-    BASE_LINK,
     FLOOR_CLEARANCE,
     PEDESTAL_HALF_WIDTH,
     ArmKinematics,
@@ -41,6 +40,7 @@ from ur_rg2_motion.kinematics import (
     urdf_velocity_limits,
 )
 from ur_rg2_motion.messages import ball_in_base_link
+from ur_rg2_motion.urdf import BASE_LINK
 
 # Best effort (a driver's reliable joint_states match too); deep enough that an arm's and a
 # gripper's joint states published apart are both among the newest (ur_rg2_common.inbox).

@@ -5,6 +5,7 @@ import math
 import numpy as np
 import pytest
 from ur_rg2_common.contract import ARM_JOINTS
+from ur_rg2_sim.execution import Execution
 from ur_rg2_sim.trajectory import (
     GOAL_TOLERANCE_VIOLATED,
     INVALID_GOAL,
@@ -12,7 +13,6 @@ from ur_rg2_sim.trajectory import (
     OLD_HEADER_TIMESTAMP,
     PATH_TOLERANCE_VIOLATED,
     SUCCESSFUL,
-    Execution,
     Point,
     Tolerance,
     TrajectoryError,

@@ -14,13 +14,12 @@ from typing import Optional
 import numpy as np
 from ur_rg2_common.contract import ARM_JOINTS
 
+from ur_rg2_sim.execution import Execution, Sample
 from ur_rg2_sim.simulation import NS
 from ur_rg2_sim.trajectory import (
     INVALID_GOAL,
     SUCCESSFUL,
-    Execution,
     Goal,
-    Sample,
     limits_of,
     plan,
 )

@@ -30,7 +30,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ur_rg2_vision.detector import BallDetector, Detection, HsvRange, least_squares_step
+from ur_rg2_vision.circle_fit import least_squares_step
+from ur_rg2_vision.detector import BallDetector, Detection, HsvRange
 from ur_rg2_vision.sphere import sphere_box
 
 MODEL_FILE = 'model.onnx'

@@ -33,7 +33,8 @@ import math
 import cv2
 import numpy as np
 
-from ur_rg2_vision.detector import Detection, least_squares_step
+from ur_rg2_vision.circle_fit import least_squares_step
+from ur_rg2_vision.detector import Detection
 
 _CORE = 0.85  # use pixels within this fraction of the circle radius (the rim mixes depths)
 _MIN_POINTS = 6

@@ -9,7 +9,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ur_rg2_tools.lerobot import DEFAULT_TASK, ExportError, export
+from ur_rg2_tools.lerobot import DEFAULT_TASK, export
+from ur_rg2_tools.recording_frames import ExportError
 
 
 def main(args: list[str] | None = None) -> int:

@@ -8,14 +8,25 @@ same number, at start-up and at run time, while the parameter stays a double (``
 describe`` says so). Any other kind (a string for a number) is still refused by rclpy, with
 its reason.
 
+Every node declares its parameters the same way: a module-level tuple of :class:`ParameterSpec`
+in a plain settings module of its package (each default written once, there), a frozen
+dataclass whose ``from_values`` validates the values, ``declare_parameters(node, SPECS)`` at
+start-up, and :func:`follow_settings` to keep the dataclass up to date when parameters are set
+at run time. The node reads the dataclass, never ``get_parameter``.
+
 Used by every node of the graph, so it lives in the package they all depend on.
 """
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from functools import partial
-from typing import Any, NamedTuple, Optional
+from typing import Any, NamedTuple, Optional, TypeVar
 
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    SetParametersResult,
+)
 from rclpy.exceptions import InvalidParameterTypeException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -69,6 +80,42 @@ def declare_parameters(node: Node, specs: Iterable[Sequence]) -> dict[str, Any]:
         values[spec.name] = _declare(node, spec).value
     node.add_pre_set_parameters_callback(partial(_integers_as_doubles, node))
     return values
+
+
+Settings = TypeVar('Settings')
+
+
+def current_values(node: Node, specs: Iterable[Sequence],
+                   changes: Iterable[Parameter] = ()) -> dict[str, Any]:
+    """Return the values of ``specs`` on ``node`` by name, with ``changes`` (being set) applied."""
+    values = {spec[0]: node.get_parameter(spec[0]).value for spec in specs}
+    values.update({parameter.name: parameter.value for parameter in changes
+                   if parameter.name in values})
+    return values
+
+
+def follow_settings(node: Node, specs: Iterable[Sequence],
+                    from_values: Callable[[dict[str, Any]], Settings],
+                    apply: Callable[[Settings], None]) -> None:
+    """Keep a node's settings in step with parameters set at run time.
+
+    On each set-parameters request, ``from_values`` builds the settings from the values the
+    request would leave; a ValueError or TypeError it raises refuses the request with its
+    message (logged as a warning), else ``apply`` gets the new settings. Call it after
+    :func:`declare_parameters`.
+    """
+    specs = tuple(specs)
+
+    def on_set(parameters: list[Parameter]) -> SetParametersResult:
+        try:
+            settings = from_values(current_values(node, specs, parameters))
+        except (TypeError, ValueError) as error:
+            node.get_logger().warning(f'parameter change rejected: {error}')
+            return SetParametersResult(successful=False, reason=str(error))
+        apply(settings)
+        return SetParametersResult(successful=True)
+
+    node.add_on_set_parameters_callback(on_set)
 
 
 def _declare(node: Node, spec: ParameterSpec) -> Parameter:

@@ -3,12 +3,13 @@
 from array import array
 from collections.abc import Sequence
 import math
+import sys
 
 from builtin_interfaces.msg import Time
-from sensor_msgs.msg import CameraInfo, JointState
+from sensor_msgs.msg import CameraInfo, Image, JointState
 from std_msgs.msg import Header
 
-from ur_rg2_sim.camera import Camera
+from ur_rg2_sim.camera import Camera, Frame
 from ur_rg2_sim.simulation import NS
 
 
@@ -24,6 +25,19 @@ def joint_state(names: Sequence[str], doubles, words) -> JointState:
                       name=list(names), position=array('d', doubles[:count]),
                       velocity=array('d', doubles[count:2 * count]),
                       effort=array('d', doubles[2 * count:]))
+
+
+def camera_images(frame: Frame, stamp_ns: int, frame_id: str) -> tuple[Image, Image]:
+    """Return the colour (rgb8) and depth (32FC1, m) images of a camera frame, one header."""
+    height, width = frame.depth.shape
+    color = Image(height=height, width=width, encoding='rgb8', step=width * 3)
+    color.header.stamp = stamp(stamp_ns)
+    color.header.frame_id = frame_id
+    color.data = frame.rgb.tobytes()
+    depth = Image(header=color.header, height=height, width=width, encoding='32FC1',
+                  is_bigendian=sys.byteorder == 'big', step=width * 4)
+    depth.data = frame.depth.tobytes()
+    return color, depth
 
 
 def camera_info(camera: Camera, header: Header) -> CameraInfo:

@@ -18,6 +18,7 @@ from typing import Optional
 import numpy as np
 from ur_rg2_common.contract import ARM_JOINTS
 
+from ur_rg2_sim.outputs import degrees_list
 from ur_rg2_sim.planning import CollisionModel
 from ur_rg2_sim.simulation import NS
 from ur_rg2_sim.world import Contact, SimWorld
@@ -168,3 +169,16 @@ def describe(contact: Contact) -> str:
     obstacle = (f'the {contact.obstacle}' if contact.obstacle in ('floor', 'pedestal')
                 else f'the arm itself ({contact.obstacle})')
     return f'{contact.link} touched {obstacle}'
+
+
+def protective_stop_message(contact: Contact, held: Mapping[str, float]) -> str:
+    """Return what the sim says of a protective stop: what touched, where the arm holds."""
+    return (f'protective stop: {describe(contact)} ({contact.force:.0f} N); the arm '
+            f'holds at {degrees_list(held.values())} deg. Commands that move it away '
+            '(reset, a jog or trajectory back) are obeyed')
+
+
+def no_way_home_message(held: Sequence[float]) -> str:
+    """Return what the sim says when reset finds no way home."""
+    return (f'reset: no way home clear of the floor, the pedestal and the arm itself from '
+            f'{degrees_list(held)} deg; the arm holds there. Jog it clear and reset again')

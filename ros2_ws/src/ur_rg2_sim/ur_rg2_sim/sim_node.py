@@ -1,22 +1,19 @@
 """ROS 2 node ``ur_rg2_sim``: wires the pybullet simulation to topics, services, parameters."""
 
-from collections.abc import Sequence
 import os
 import sys
 from typing import Optional
 
 from builtin_interfaces.msg import Time
-from rcl_interfaces.msg import SetParametersResult
 import rclpy
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.exceptions import ParameterException
 from rclpy.node import Node
-from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image, JointState
 from std_srvs.srv import Trigger
 from ur_rg2_common.contract import ARM_JOINTS, IMAGE_QOS
-from ur_rg2_common.parameters import declare_parameters
+from ur_rg2_common.parameters import declare_parameters, follow_settings
 from ur_rg2_common.spin import run_node
 
 from ur_rg2_sim.camera import Camera, Frame, RendererError
@@ -24,11 +21,18 @@ from ur_rg2_sim.commands import CommandError, joint_targets
 from ur_rg2_sim.controllers import Controllers
 from ur_rg2_sim.frame_publisher import FramePublisher
 from ur_rg2_sim.frames import OPTICAL_FRAME, load_frame_tree, robot_description
-from ur_rg2_sim.outputs import camera_info, degrees_list, gripper_outcome, joint_state, stamp
+from ur_rg2_sim.outputs import (
+    camera_images,
+    camera_info,
+    degrees_list,
+    gripper_outcome,
+    joint_state,
+    stamp,
+)
 from ur_rg2_sim.planning import CollisionModel
 from ur_rg2_sim.render_thread import DropWatch
 from ur_rg2_sim.robot_model import RobotModelError
-from ur_rg2_sim.safety import Homing, ProtectiveStop, describe
+from ur_rg2_sim.safety import Homing, ProtectiveStop, no_way_home_message, protective_stop_message
 from ur_rg2_sim.serialized import SerializedPublisher
 from ur_rg2_sim.settings import PARAMETERS, SimSettings
 from ur_rg2_sim.simulation import NS, SimulationLoop, SimulationUnavailableError, answer
@@ -85,7 +89,7 @@ class SimNode(Node):
                                ('gripper/close', self._on_gripper_close),
                                ('reset', self._on_reset)):
             self.create_service(Trigger, name, callback, callback_group=self.blocking_group)
-        self.add_on_set_parameters_callback(self._on_set_parameters)
+        follow_settings(self, PARAMETERS, SimSettings.from_values, self._apply_settings)
 
         self._drops = DropWatch()
         camera = self._make_camera(s)
@@ -161,14 +165,7 @@ class SimNode(Node):
 
     def frame(self, stamp_ns: int, camera: Camera, frame: Frame) -> None:
         """Publish colour, depth and their camera_info with one header."""
-        height, width = frame.depth.shape
-        color = Image(height=height, width=width, encoding='rgb8', step=width * 3)
-        color.header.stamp = stamp(stamp_ns)
-        color.header.frame_id = self._color_frame
-        color.data = frame.rgb.tobytes()
-        depth = Image(header=color.header, height=height, width=width, encoding='32FC1',
-                      is_bigendian=sys.byteorder == 'big', step=width * 4)
-        depth.data = frame.depth.tobytes()
+        color, depth = camera_images(frame, stamp_ns, self._color_frame)
         info = camera_info(camera, color.header)
         self._color_pub.publish(color)
         self._color_info_pub.publish(info)
@@ -206,16 +203,12 @@ class SimNode(Node):
             self._homing.step(world)
 
     def _on_no_way_home(self, held: list[float]) -> None:
-        self.get_logger().warning(
-            f'reset: no way home clear of the floor, the pedestal and the arm itself from '
-            f'{degrees_list(held)} deg; the arm holds there. Jog it clear and reset again')
+        self.get_logger().warning(no_way_home_message(held))
 
     def _on_protective_stop(self, contact: Contact, held: dict[str, float], new: bool) -> None:
         """Report a stop: abort the running trajectory, tell homing, warn once (sim thread)."""
         self._homing.blocked()
-        message = (f'protective stop: {describe(contact)} ({contact.force:.0f} N); the arm '
-                   f'holds at {degrees_list(held.values())} deg. Commands that move it away '
-                   '(reset, a jog or trajectory back) are obeyed')
+        message = protective_stop_message(contact, held)
         self._controllers.arm_blocked(message)
         if new:
             self.get_logger().warning(message)
@@ -260,14 +253,8 @@ class SimNode(Node):
 
     # -- parameters ---------------------------------------------------------------------------
 
-    def _on_set_parameters(self, parameters: Sequence[Parameter]) -> SetParametersResult:
-        values = {spec.name: self.get_parameter(spec.name).value for spec in PARAMETERS}
-        values.update({p.name: p.value for p in parameters})
-        try:
-            settings = SimSettings.from_values(values)
-        except (TypeError, ValueError) as error:  # CommandError is a ValueError
-            self.get_logger().warning(f'parameter change rejected: {error}')
-            return SetParametersResult(successful=False, reason=str(error))
+    def _apply_settings(self, settings: SimSettings) -> None:
+        """Bring the world, the camera and /tf_static in line with settings set at run time."""
         previous, self.settings = self.settings, settings
         if settings.ball_position != previous.ball_position:
             self._sim.call(lambda world: world.set_ball_position(settings.ball_position))
@@ -283,7 +270,6 @@ class SimNode(Node):
             # Queued after the new camera: every frame stamped after this /tf_static uses it.
             self._sim.call(lambda world: self._frames.publish_static(
                 stamp(self._sim.sim_time_ns), settings.camera_position, settings.camera_look_at))
-        return SetParametersResult(successful=True)
 
     def _make_camera(self, settings: SimSettings) -> Optional[Camera]:
         if settings.camera_rate <= 0:

@@ -27,7 +27,7 @@ from std_msgs.msg import Float64, String
 from std_srvs.srv import Trigger
 from ur_rg2_common.contract import GRIPPER_ACTION, LATCHED_QOS, TRAJECTORY_ACTION
 from ur_rg2_common.episode import EpisodeMarkers
-from ur_rg2_common.parameters import declare_parameters
+from ur_rg2_common.parameters import declare_parameters, follow_settings
 from ur_rg2_common.spin import run_node
 from ur_rg2_common.tf_buffer import FrameLookupError, pose_matrix
 
@@ -39,7 +39,7 @@ from ur_rg2_motion.pick_action import REFUSED, PickOutcome, PickRun, attempt
 from ur_rg2_motion.pick_server import PickActionServer
 from ur_rg2_motion.planning import jog_target, limit_tcp_speed, plan_move
 from ur_rg2_motion.robot_state import NotReceivedError, RobotState, subscribe
-from ur_rg2_motion.settings import PARAMETERS, pick_settings
+from ur_rg2_motion.settings import PARAMETERS, MotionSettings
 from ur_rg2_motion.urdf import BASE_LINK
 from ur_rg2_motion.waiting import WaitingRequests
 
@@ -54,12 +54,13 @@ class MotionNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__(NODE_NAME, **kwargs)
-        declare_parameters(self, PARAMETERS)
-        offset = self.get_parameter('tcp_offset').value
+        self.settings = MotionSettings.from_values(declare_parameters(self, PARAMETERS))
+        follow_settings(self, PARAMETERS, MotionSettings.from_values,
+                        lambda settings: setattr(self, 'settings', settings))
         # pick_ball waits for the controllers: run it on a worker thread (BlockingGroupExecutor)
         # while everything else, quick, stays on the spinning thread.
         self.blocking_group = ReentrantCallbackGroup()
-        self.state = RobotState(offset if any(offset) else None)
+        self.state = RobotState(self.settings.tcp_offset)
         self._lock = threading.Lock()
         self._ready = False
         self._speed_scaling: float | None = None
@@ -118,8 +119,8 @@ class MotionNode(Node):
 
     def _kinematics(self) -> ArmKinematics:
         """Return the arm model with the floor and pedestal as the tree has them now."""
-        return self.state.kinematics(self.get_parameter('pedestal_half_width').value,
-                                     self.get_parameter('floor_clearance').value)
+        return self.state.kinematics(self.settings.pedestal_half_width,
+                                     self.settings.floor_clearance)
 
     # -- tool_command and tool_jog --------------------------------------------------------------
 
@@ -174,8 +175,8 @@ class MotionNode(Node):
                                    '(is the sim or the driver running?)')
         trajectory = limit_tcp_speed(
             plan_move(arm, joints, target, self.state.velocity_limits,
-                      self.get_parameter('speed_scale').value, MIN_MOVE_DURATION),
-            arm, joints, self.get_parameter('tcp_speed').value)
+                      self.settings.speed_scale, MIN_MOVE_DURATION),
+            arm, joints, self.settings.tcp_speed)
         with self._send_lock:
             self._cancel_pick(source)
             with self._lock:
@@ -232,23 +233,22 @@ class MotionNode(Node):
 
     def _ball_in_base_link(self) -> np.ndarray:
         try:
-            return self.state.ball_centre(self.get_parameter('ball_timeout').value, FRAME_WAIT_S)
+            return self.state.ball_centre(self.settings.ball_timeout, FRAME_WAIT_S)
         except ValueError as error:
             raise PickError(str(error)) from None
 
     def _pick_up(self, ball: np.ndarray, progress: Progress) -> float:
         self._pick_needs_vision = True
         # On a worker thread: what a pick needs of the graph may be waited for.
-        arm = self.state.kinematics(self.get_parameter('pedestal_half_width').value,
-                                    self.get_parameter('floor_clearance').value, FRAME_WAIT_S)
+        arm = self.state.kinematics(self.settings.pedestal_half_width,
+                                    self.settings.floor_clearance, FRAME_WAIT_S)
         self.state.joints(FRAME_WAIT_S)
         for client, name in ((self._trajectory, TRAJECTORY_ACTION),
                              (self._gripper, GRIPPER_ACTION)):
             if not client.wait_for_server(timeout_sec=FRAME_WAIT_S):
                 raise PickError(f'{name} is not available (is the sim or the driver running?)')
         with self._episodes.marked():
-            return run_pick(self._arm_io, arm, ball,
-                            pick_settings(lambda name: self.get_parameter(name).value), progress)
+            return run_pick(self._arm_io, arm, ball, self.settings.pick(), progress)
 
     def _check_pick(self) -> None:
         """Raise when the running pick was cancelled, or lost vision while it needs it.

@@ -1,6 +1,6 @@
-"""The motion node's parameters, declared with descriptions, and the pick's share of them."""
+"""The motion node's parameters: their declarations and their values. Plain Python, no ROS."""
 
-from collections.abc import Callable
+from dataclasses import dataclass
 
 from ur_rg2_common.parameters import ParameterSpec
 
@@ -33,7 +33,30 @@ PARAMETERS = (
 )
 
 
-def pick_settings(value: Callable[[str], object]) -> PickSettings:
-    """Return the pick's settings from the parameter values ``value(name)`` gives."""
-    return PickSettings(value('approach_height'), value('lift_height'), value('speed_scale'),
-                        value('approach_speed'), value('grasp_tolerance'))
+@dataclass(frozen=True)
+class MotionSettings:
+    """The motion node's parameter values (rclpy has checked their types and bounds)."""
+
+    lift_height: float
+    approach_height: float
+    speed_scale: float
+    tcp_speed: float
+    approach_speed: float
+    ball_timeout: float
+    floor_clearance: float
+    pedestal_half_width: float
+    grasp_tolerance: float
+    tcp_offset: tuple[float, float, float] | None  # None: not set
+
+    @classmethod
+    def from_values(cls, values: dict) -> 'MotionSettings':
+        """Return the settings of raw parameter values, by name."""
+        offset = tuple(float(v) for v in values['tcp_offset'])
+        return cls(**{spec.name: float(values[spec.name]) for spec in PARAMETERS
+                      if spec.name != 'tcp_offset'},
+                   tcp_offset=offset if any(offset) else None)
+
+    def pick(self) -> PickSettings:
+        """Return the pick's share of the settings."""
+        return PickSettings(self.approach_height, self.lift_height, self.speed_scale,
+                            self.approach_speed, self.grasp_tolerance)

@@ -251,20 +251,16 @@ class DetectionConfig:
     ball_radius: float
 
 
-def detection_config(values: dict, model: BallModel | None) -> DetectionConfig:
-    """Return the detection settings for parameter values; ValueError if they are invalid.
+def detection_config(color: HsvRange, min_radius_px: float, ball_radius: float,
+                     model: BallModel | None) -> DetectionConfig:
+    """Return the detector of the vision node's settings and the ball radius it assumes.
 
-    ``values``: ``hsv_lower``, ``hsv_upper``, ``min_radius_px``, ``ball_radius``; ``model``:
-    the learned detector's model, None for the colour detector.
+    ``color`` is the colour detector's range; ``model``: the learned detector's model, None
+    for the colour detector.
     """
-    color = HsvRange(tuple(int(x) for x in values['hsv_lower']),
-                     tuple(int(x) for x in values['hsv_upper']))
-    if not values['ball_radius'] >= 0:
-        raise ValueError(f'ball_radius must be 0 (measure) or positive, got '
-                         f'{values["ball_radius"]}')
-    detector = (BallDetector(color, values['min_radius_px']) if model is None
-                else LearnedBallDetector(model, values['min_radius_px']))
-    return DetectionConfig(detector, float(values['ball_radius']))
+    detector = (BallDetector(color, min_radius_px) if model is None
+                else LearnedBallDetector(model, min_radius_px))
+    return DetectionConfig(detector, ball_radius)
 
 
 def box_detection(box: tuple[float, float, float, float, float], width: int, height: int,

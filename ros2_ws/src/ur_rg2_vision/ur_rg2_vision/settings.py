@@ -1,8 +1,11 @@
-"""The vision node's parameters, declared with descriptions."""
+"""The vision and viewer nodes' parameters: declarations and validated values. No ROS."""
+
+from dataclasses import dataclass
+import os
 
 from ur_rg2_common.parameters import ParameterSpec
 
-from ur_rg2_vision.detector import DEFAULT_MIN_RADIUS_PX, RED
+from ur_rg2_vision.detector import DEFAULT_MIN_RADIUS_PX, RED, HsvRange
 
 PARAMETERS = (
     ParameterSpec('frames_dir', 'frames', 'Directory for saved frames (created when needed); '
@@ -27,5 +30,66 @@ PARAMETERS = (
                   read_only=True),
 )
 DETECTORS = ('color', 'learned')
-# Parameters that change how balls are found in the next frame.
-DETECTION_PARAMETERS = ('hsv_lower', 'hsv_upper', 'min_radius_px', 'ball_radius')
+
+
+@dataclass(frozen=True)
+class VisionSettings:
+    """Validated parameter values."""
+
+    frames_dir: str  # absolute: logs and save_frame answers say where the files really are
+    save_every_n: int
+    color: HsvRange  # hsv_lower, hsv_upper
+    min_radius_px: float
+    ball_radius: float
+    detector: str
+    model_dir: str
+
+    @classmethod
+    def from_values(cls, values: dict) -> 'VisionSettings':
+        """Validate raw parameter values; raise ValueError naming the first bad one."""
+        if values['detector'] not in DETECTORS:
+            raise ValueError(f"detector must be {' or '.join(DETECTORS)}, got "
+                             f"{values['detector']!r}")
+        if not values['ball_radius'] >= 0:
+            raise ValueError(f'ball_radius must be 0 (measure) or positive, got '
+                             f'{values["ball_radius"]}')
+        return cls(
+            frames_dir=os.path.abspath(values['frames_dir']),
+            save_every_n=values['save_every_n'],
+            color=HsvRange(tuple(int(x) for x in values['hsv_lower']),
+                           tuple(int(x) for x in values['hsv_upper'])),
+            min_radius_px=float(values['min_radius_px']),
+            ball_radius=float(values['ball_radius']),
+            detector=values['detector'],
+            model_dir=values['model_dir'],
+        )
+
+
+VIEWER_PARAMETERS = (
+    ParameterSpec('address', '127.0.0.1', 'Address to serve on. Loopback by default: the page '
+                  'has no authentication, so only set another address on a trusted network.',
+                  read_only=True),
+    ParameterSpec('port', 8080, 'TCP port to serve on (0: any free port, logged at start-up).',
+                  read_only=True, bounds=(0, 65535)),
+    ParameterSpec('image_topic', 'ball/image', 'Colour image topic to stream: the annotated '
+                  'ball/image, or camera/color/image_raw to watch the raw camera without vision.',
+                  read_only=True),
+    ParameterSpec('jpeg_quality', 80, 'JPEG quality of the stream and snapshots, 1-100.',
+                  read_only=True, bounds=(1, 100)),
+)
+
+
+@dataclass(frozen=True)
+class ViewerSettings:
+    """The viewer node's parameter values (rclpy has checked their types and bounds)."""
+
+    address: str
+    port: int
+    image_topic: str
+    jpeg_quality: int
+
+    @classmethod
+    def from_values(cls, values: dict) -> 'ViewerSettings':
+        """Return the settings of raw parameter values, by name."""
+        return cls(values['address'], values['port'], values['image_topic'],
+                   values['jpeg_quality'])

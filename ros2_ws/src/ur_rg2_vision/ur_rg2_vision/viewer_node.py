@@ -36,11 +36,12 @@ from tf2_msgs.msg import TFMessage
 from ur_rg2_common.camera_pose import optical_rotation
 from ur_rg2_common.contract import LATCHED_QOS, WORLD_FRAME
 from ur_rg2_common.inbox import Arrival, Inbox
-from ur_rg2_common.parameters import ParameterSpec, declare_parameters
+from ur_rg2_common.parameters import declare_parameters
 from ur_rg2_common.spin import run_node
 from ur_rg2_common.tf_buffer import FrameLookupError, TransformBuffer, transform_point
 
 from ur_rg2_vision.ros_image import image_to_rgb
+from ur_rg2_vision.settings import VIEWER_PARAMETERS, ViewerSettings
 from ur_rg2_vision.viewer_web import (
     FrameHub,
     ViewerServer,
@@ -69,28 +70,15 @@ def camera_to_world(position: Sequence[float], look_at: Sequence[float]
     origin = np.asarray(position, dtype=float)
     return lambda point: rotation @ np.asarray(point, dtype=float) + origin
 
-_PARAMETERS = (
-    ParameterSpec('address', '127.0.0.1', 'Address to serve on. Loopback by default: the page '
-                  'has no authentication, so only set another address on a trusted network.',
-                  read_only=True),
-    ParameterSpec('port', 8080, 'TCP port to serve on (0: any free port, logged at start-up).',
-                  read_only=True, bounds=(0, 65535)),
-    ParameterSpec('image_topic', 'ball/image', 'Colour image topic to stream: the annotated '
-                  'ball/image, or camera/color/image_raw to watch the raw camera without vision.',
-                  read_only=True),
-    ParameterSpec('jpeg_quality', 80, 'JPEG quality of the stream and snapshots, 1-100.',
-                  read_only=True, bounds=(1, 100)),
-)
-
 
 class ViewerNode(Node):
     """Serves the annotated camera stream and the robot's state over HTTP."""
 
     def __init__(self, **kwargs) -> None:
         super().__init__(NODE_NAME, **kwargs)
-        values = declare_parameters(self, _PARAMETERS)
-        address, port, image_topic = values['address'], values['port'], values['image_topic']
-        quality = values['jpeg_quality']
+        self.settings = s = ViewerSettings.from_values(
+            declare_parameters(self, VIEWER_PARAMETERS))
+        address, port, image_topic, quality = s.address, s.port, s.image_topic, s.jpeg_quality
 
         self._hub = FrameHub(quality, self._decode)
         # Only the newest frame is shown: DDS keeps one (reliable, as the camera topics are);

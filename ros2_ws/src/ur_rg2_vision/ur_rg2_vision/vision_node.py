@@ -18,21 +18,18 @@ the next frame a little.
 """
 
 from dataclasses import dataclass
-import os
 import sys
 import time
 
 from geometry_msgs.msg import Point, PointStamped
 import numpy as np
-from rcl_interfaces.msg import SetParametersResult
 from rclpy.exceptions import ParameterException
 from rclpy.node import Node
-from rclpy.parameter import Parameter
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 from ur_rg2_common.contract import IMAGE_QOS
-from ur_rg2_common.parameters import declare_parameters
+from ur_rg2_common.parameters import declare_parameters, follow_settings
 from ur_rg2_common.spin import keep_freed_memory, run_node
 
 from ur_rg2_vision.detector import Detection, draw_detections
@@ -41,7 +38,7 @@ from ur_rg2_vision.learned import BallModel, detection_config
 from ur_rg2_vision.localize import BallPosition, locate_first
 from ur_rg2_vision.pairing import FramePairs
 from ur_rg2_vision.ros_image import camera_matrix, image_to_depth, image_to_rgb, rgb_to_image
-from ur_rg2_vision.settings import DETECTION_PARAMETERS, DETECTORS, PARAMETERS
+from ur_rg2_vision.settings import PARAMETERS, VisionSettings
 
 NODE_NAME = 'ur_rg2_vision'
 
@@ -76,17 +73,11 @@ class VisionNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__(NODE_NAME, **kwargs)
-        values = declare_parameters(self, PARAMETERS)
-        if values['detector'] not in DETECTORS:
-            raise ValueError(f"detector must be {' or '.join(DETECTORS)}, got "
-                             f"{values['detector']!r}")
+        self.settings = s = VisionSettings.from_values(declare_parameters(self, PARAMETERS))
         # Loaded once: read-only, and a missing or broken model stops the start (ModelError).
-        self._model = BallModel(values['model_dir']) if values['detector'] == 'learned' else None
-        self._config = detection_config(values, self._model)
-        # Absolute from here on: logs and save_frame answers say where the files really are.
-        self._frames_dir = os.path.abspath(values['frames_dir'])
-        self._save_every_n = values['save_every_n']
-        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self._model = BallModel(s.model_dir) if s.detector == 'learned' else None
+        self._config = detection_config(s.color, s.min_radius_px, s.ball_radius, self._model)
+        follow_settings(self, PARAMETERS, VisionSettings.from_values, self._apply_settings)
 
         self._camera: tuple[np.ndarray, tuple[int, int]] | None = None  # k, (width, height)
         self._awaiting_info: _Frame | None = None  # a complete frame without a fitting info
@@ -114,25 +105,17 @@ class VisionNode(Node):
                else f'with the learned detector in {self._model.directory}')
         self.get_logger().info(
             f'looking for the ball {how} in {self.resolve_topic_name("camera/color/image_raw")}'
-            f'; frames are saved to {self._frames_dir}')
+            f'; frames are saved to {s.frames_dir}')
 
     # -- parameters ---------------------------------------------------------------------------
 
-    def _on_set_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
-        values = {name: self.get_parameter(name).value for name in DETECTION_PARAMETERS}
-        values.update({p.name: p.value for p in parameters if p.name in values})
-        try:
-            config = detection_config(values, self._model)
-        except ValueError as error:
-            return SetParametersResult(successful=False, reason=str(error))
-        self._config = config
-        for parameter in parameters:
-            if parameter.name == 'frames_dir':
-                self._frames_dir = os.path.abspath(parameter.value)
-                self.get_logger().info(f'frames are saved to {self._frames_dir}')
-            elif parameter.name == 'save_every_n':
-                self._save_every_n = parameter.value
-        return SetParametersResult(successful=True)
+    def _apply_settings(self, settings: VisionSettings) -> None:
+        previous, self.settings = self.settings, settings
+        # Balls are found with these from the next frame on.
+        self._config = detection_config(settings.color, settings.min_radius_px,
+                                         settings.ball_radius, self._model)
+        if settings.frames_dir != previous.frames_dir:
+            self.get_logger().info(f'frames are saved to {settings.frames_dir}')
 
     # -- inputs -------------------------------------------------------------------------------
 
@@ -164,7 +147,7 @@ class VisionNode(Node):
         frame = _Frame(msg.header, self._color_count, rgb, [])
         if not self._config.detector.needs_depth:
             self._detect(frame)
-        every = self._save_every_n
+        every = self.settings.save_every_n
         frame.autosave = every > 0 and frame.index % every == 0
         self._latest = frame
         depth, stale = self._pairs.add_color(_stamp_key(msg.header), frame)
@@ -267,13 +250,15 @@ class VisionNode(Node):
 
     def _save(self, frame: _Frame) -> list[str]:
         stamp = frame.header.stamp
-        return save_frame(self._frames_dir, stamp.sec, stamp.nanosec, frame.rgb, frame.depth)
+        return save_frame(self.settings.frames_dir, stamp.sec, stamp.nanosec, frame.rgb,
+                          frame.depth)
 
     def _autosave(self, frame: _Frame) -> None:
         try:
             self._save(frame)
         except OSError as error:
-            self._warn('autosave', f'save_every_n: cannot save to {self._frames_dir!r}: {error}')
+            self._warn('autosave', 'save_every_n: cannot save to '
+                       f'{self.settings.frames_dir!r}: {error}')
 
     def _on_save_frame(self, request: Trigger.Request, response: Trigger.Response
                        ) -> Trigger.Response:
@@ -290,7 +275,7 @@ class VisionNode(Node):
             paths = self._save(frame)
         except OSError as error:
             response.success = False
-            response.message = f'cannot save to {self._frames_dir!r}: {error}'
+            response.message = f'cannot save to {self.settings.frames_dir!r}: {error}'
             self.get_logger().warning(f'vision/save_frame: {response.message}')
             return response
         response.success = True

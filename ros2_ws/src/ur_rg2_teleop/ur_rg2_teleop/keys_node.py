@@ -11,7 +11,7 @@ from geometry_msgs.msg import TransformStamped
 import rclpy
 from rclpy.client import Client
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_sensor_data
@@ -22,7 +22,7 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 from ur_rg2_common.contract import ARM_JOINTS
 from ur_rg2_common.episode import EpisodeMarkers
-from ur_rg2_common.parameters import ParameterSpec, declare_parameters
+from ur_rg2_common.parameters import declare_parameters, follow_settings
 
 from ur_rg2_teleop.display import (
     Console,
@@ -33,10 +33,6 @@ from ur_rg2_teleop.display import (
     result_outcome,
 )
 from ur_rg2_teleop.keymap import (
-    MAX_STEP_DEG,
-    MAX_STEP_MM,
-    MIN_STEP_DEG,
-    MIN_STEP_MM,
     SERVICES,
     STEP_LADDER_MM,
     CallService,
@@ -56,13 +52,13 @@ from ur_rg2_teleop.keymap import (
     smaller_step,
     tool_step,
 )
+from ur_rg2_teleop.loops import key_loop, spin
 from ur_rg2_teleop.pick_client import PICK_ACTION, PickClient
 from ur_rg2_teleop.readiness import Readiness, needs
+from ur_rg2_teleop.settings import PARAMETERS, KeysSettings
 from ur_rg2_teleop.terminal import KeyReader, Stop, raw_mode, signal_pipe
 
 USAGE_ERROR = 2
-# How often the key loop looks up from the keyboard to check that ROS is still being spun.
-_SPIN_CHECK_PERIOD = 0.5
 # Every jog is relative, so none may be dropped: room for a burst of pasted or repeated keys.
 _JOG_QUEUE_DEPTH = 100
 # Tool-mode steps are along and about this frame's axes.
@@ -79,13 +75,9 @@ class KeysNode(Node):
     def __init__(self, console: Console, **kwargs) -> None:
         super().__init__('ur_rg2_teleop', **kwargs)
         self._console = console
-        declare_parameters(self, [
-            ParameterSpec('step_deg', 5.0, 'Degrees one jog key moves its joint (or, in tool '
-                          'mode, turns the TCP); + and - change it in joint mode',
-                          bounds=(MIN_STEP_DEG, MAX_STEP_DEG)),
-            ParameterSpec('step_mm', 10.0, 'Millimetres one jog key moves the TCP in tool mode; '
-                          '+ and - change it in tool mode', bounds=(MIN_STEP_MM, MAX_STEP_MM)),
-        ])
+        self.settings = KeysSettings.from_values(declare_parameters(self, PARAMETERS))
+        follow_settings(self, PARAMETERS, KeysSettings.from_values,
+                        lambda settings: setattr(self, 'settings', settings))
         self._mode = Mode.JOINT
         self._jog_publisher = self.create_publisher(JointState, 'joint_jog', _JOG_QUEUE_DEPTH)
         self._tool_jog_publisher = self.create_publisher(
@@ -104,16 +96,6 @@ class KeysNode(Node):
         self._angles: list[float] | None = None
         self._watcher.moved(time.monotonic())  # show the pose once at start-up
         self._readiness: Readiness | None = None  # set by watch_readiness
-
-    @property
-    def step_deg(self) -> float:
-        """Current jog step in degrees."""
-        return self.get_parameter('step_deg').value
-
-    @property
-    def step_mm(self) -> float:
-        """Current tool-mode TCP step in millimetres."""
-        return self.get_parameter('step_mm').value
 
     @property
     def mode(self) -> Mode:
@@ -142,17 +124,19 @@ class KeysNode(Node):
         elif action in (Command.STEP_UP, Command.STEP_DOWN):
             change = larger_step if action is Command.STEP_UP else smaller_step
             if self._mode is Mode.TOOL:
-                self.set_parameters([Parameter('step_mm', value=change(self.step_mm,
+                self.set_parameters([Parameter('step_mm', value=change(self.settings.step_mm,
                                                                        STEP_LADDER_MM))])
-                self._console.line(describe_step(self.step_mm, 'mm', STEP_LADDER_MM))
+                self._console.line(describe_step(self.settings.step_mm, 'mm', STEP_LADDER_MM))
             else:
-                self.set_parameters([Parameter('step_deg', value=change(self.step_deg))])
-                self._console.line(describe_step(self.step_deg))
+                self.set_parameters([Parameter('step_deg', value=change(self.settings.step_deg))])
+                self._console.line(describe_step(self.settings.step_deg))
         elif action is Command.MODE:
             self._mode = Mode.TOOL if self._mode is Mode.JOINT else Mode.JOINT
-            self._console.line(mode_line(self._mode, self.step_deg, self.step_mm))
+            self._console.line(mode_line(self._mode, self.settings.step_deg,
+                                         self.settings.step_mm))
         elif action is Command.HELP:
-            self._console.line(help_text(self.step_deg, self._mode, self.step_mm))
+            self._console.line(help_text(self.settings.step_deg, self._mode,
+                                         self.settings.step_mm))
         elif action is Command.QUIT:
             return False
         else:
@@ -189,7 +173,7 @@ class KeysNode(Node):
         message = JointState()
         message.header.stamp = self.get_clock().now().to_msg()
         message.name = [ARM_JOINTS[jog.joint]]
-        message.position = [jog.direction * math.radians(self.step_deg)]
+        message.position = [jog.direction * math.radians(self.settings.step_deg)]
         self._jog_publisher.publish(message)
         with self._lock:
             self._watcher.moved(time.monotonic())
@@ -201,7 +185,7 @@ class KeysNode(Node):
             self._console.line('no joint_states received yet: angles cannot be shown')
 
     def _tool_jog(self, jog: Jog) -> None:
-        translation, rotation = tool_step(jog, self.step_mm, self.step_deg)
+        translation, rotation = tool_step(jog, self.settings.step_mm, self.settings.step_deg)
         message = TransformStamped()
         message.header.stamp = self.get_clock().now().to_msg()
         message.header.frame_id = TOOL_FRAME
@@ -253,25 +237,7 @@ class KeysNode(Node):
             show = self._watcher.observe(time.monotonic(), speeds)
         if show:
             self._console.line(f'{self._mode.value} mode | '
-                               f'{format_angles(angles, self.step_deg)}')
-
-
-def _spin(executor: SingleThreadedExecutor, errors: list[BaseException]) -> None:
-    try:
-        executor.spin()
-    except ExternalShutdownException:
-        pass
-    except BaseException as error:  # noqa: BLE001 - handed to the main thread, which raises it
-        errors.append(error)
-
-
-def _key_loop(node: KeysNode, reader: KeyReader, spinner: threading.Thread,
-              spin_errors: list[BaseException]) -> None:
-    while spinner.is_alive():
-        for key in reader.read(timeout=_SPIN_CHECK_PERIOD):
-            if not node.handle_key(key):
-                return
-    raise RuntimeError('the ROS executor stopped') from (spin_errors[0] if spin_errors else None)
+                               f'{format_angles(angles, self.settings.step_deg)}')
 
 
 def main(args: list[str] | None = None) -> int:
@@ -289,16 +255,17 @@ def main(args: list[str] | None = None) -> int:
     executor = SingleThreadedExecutor()
     node = None
     spin_errors: list[BaseException] = []
-    spinner = threading.Thread(target=_spin, args=(executor, spin_errors), daemon=True)
+    spinner = threading.Thread(target=spin, args=(executor, spin_errors), daemon=True)
     try:
         with signal_pipe() as stop_fd:
             node = KeysNode(console)
             executor.add_node(node)
             spinner.start()
             with raw_mode(stdin):
-                console.line(f'{help_text(node.step_deg, node.mode, node.step_mm)}\n'
+                settings = node.settings
+                console.line(f'{help_text(settings.step_deg, node.mode, settings.step_mm)}\n'
                              f'{node.watch_readiness()}')
-                _key_loop(node, KeyReader(stdin, stop_fd), spinner, spin_errors)
+                key_loop(node.handle_key, KeyReader(stdin, stop_fd), spinner, spin_errors)
     except (Stop, EOFError):
         pass
     except (InvalidParameterTypeException, InvalidParameterValueException) as error:

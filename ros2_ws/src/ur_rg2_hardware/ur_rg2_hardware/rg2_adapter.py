@@ -23,25 +23,15 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 from ur_rg2_common.action_server import WorkerActionServer
 from ur_rg2_common.contract import GRIPPER_ACTION, GRIPPER_JOINTS, RG2_MAX_OPENING
-from ur_rg2_common.parameters import ParameterSpec, declare_parameters
+from ur_rg2_common.parameters import declare_parameters, follow_settings
 from ur_rg2_common.spin import run_node
 
 from ur_rg2_hardware.gripper_mapping import GripGoal, GripOutcome, grip_goal, outcome
+from ur_rg2_hardware.settings import PARAMETERS, AdapterSettings
 
 NODE_NAME = 'ur_rg2_rg2_adapter'
 FEEDBACK_PERIOD = 0.05  # s: our feedback at 20 Hz while a goal runs
 _ANSWER_TIMEOUT = 5.0  # s for the driver to accept or refuse a goal
-
-_PARAMETERS = (
-    ParameterSpec('onrobot_action', 'onrobot/gripper_controller/gripper_cmd', "OnRobot driver's "
-                  'ParallelGripperCommand action', read_only=True),
-    ParameterSpec('onrobot_joint_states', 'onrobot/joint_states', "OnRobot driver's joint "
-                  'states (its stroke joint)', read_only=True),
-    ParameterSpec('stroke_joint', 'grip_stroke', "OnRobot driver's joint: the opening "
-                  'between the pads, m', read_only=True),
-    ParameterSpec('goal_timeout', 10.0, 'A driver goal not ended after this long is cancelled '
-                  'and fails, s', bounds=(1.0, 60.0)),
-)
 
 
 class GripError(Exception):
@@ -53,16 +43,18 @@ class Rg2Adapter(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__(NODE_NAME, **kwargs)
-        values = declare_parameters(self, _PARAMETERS)
-        self._joint = values['stroke_joint']
-        self._driver_name = values['onrobot_action']
+        self.settings = s = AdapterSettings.from_values(declare_parameters(self, PARAMETERS))
+        follow_settings(self, PARAMETERS, AdapterSettings.from_values,
+                        lambda settings: setattr(self, 'settings', settings))
+        self._joint = s.stroke_joint
+        self._driver_name = s.onrobot_action
         # The services wait for the driver: run them on worker threads (BlockingGroupExecutor).
         self.blocking_group = ReentrantCallbackGroup()
         self._lock = threading.Lock()
         self._stroke: float | None = None
-        self._driver = ActionClient(self, ParallelGripperCommand, values['onrobot_action'])
+        self._driver = ActionClient(self, ParallelGripperCommand, s.onrobot_action)
         self._states = self.create_publisher(JointState, 'joint_states', 10)
-        self.create_subscription(JointState, values['onrobot_joint_states'], self._on_state, 10)
+        self.create_subscription(JointState, s.onrobot_joint_states, self._on_state, 10)
         self._workers = ThreadPoolExecutor(2, thread_name_prefix='rg2')
         self._server = WorkerActionServer(
             self, GripperCommand, GRIPPER_ACTION, self._execute, workers=self._workers,
@@ -71,8 +63,7 @@ class Rg2Adapter(Node):
             self.create_service(Trigger, name,
                                 lambda request, response, t=target: self._on_service(t, response),
                                 callback_group=self.blocking_group)
-        self.get_logger().info(f"serving {GRIPPER_ACTION} over {values['onrobot_action']} "
-                               f"({self._joint})")
+        self.get_logger().info(f'serving {GRIPPER_ACTION} over {s.onrobot_action} ({self._joint})')
 
     def _on_state(self, message: JointState) -> None:
         if self._joint not in message.name:
@@ -143,7 +134,7 @@ class Rg2Adapter(Node):
             raise GripError('the RG2 driver refused the goal' if sent is not None
                             else 'no answer from the RG2 driver')
         ended = sent.get_result_async()
-        deadline = time.monotonic() + self.get_parameter('goal_timeout').value
+        deadline = time.monotonic() + self.settings.goal_timeout
         while not ended.done():
             if ours is not None and ours.is_cancel_requested:
                 sent.cancel_goal_async()

@@ -26,27 +26,18 @@ from std_msgs.msg import String
 from tf2_msgs.msg import TFMessage
 from ur_rg2_common.contract import GRIPPER_JOINTS, LATCHED_QOS, TF_QOS, WORLD_FRAME
 from ur_rg2_common.inbox import Arrival, Inbox
-from ur_rg2_common.parameters import ParameterSpec, declare_parameters
+from ur_rg2_common.parameters import declare_parameters, follow_settings
 from ur_rg2_common.spin import run_node
 from ur_rg2_common.tf_buffer import FrameLookupError, TransformBuffer, transform_point
 from ur_rg2_vision.ros_image import image_to_depth, image_to_rgb
 from ur_rg2_vision.viewer_web import is_loopback
 
+from ur_rg2_tools.settings import VIEW3D_PARAMETERS, View3dSettings
 from ur_rg2_tools.view3d_web import Scene, View3dServer, depth_cloud, finite
 
 NODE_NAME = 'ur_rg2_view3d'
 # pick_ball/result's text names the ball it went for: "... at (x, y, z) m in base_link ...".
 _PICK_TARGET = re.compile(r'at \(([-\d.]+), ([-\d.]+), ([-\d.]+)\) m in (\w+)')
-
-_PARAMETERS = (
-    ParameterSpec('address', '127.0.0.1', 'Address to serve on. Loopback by default: the page '
-                  'has no authentication, so only set another address on a trusted network.',
-                  read_only=True),
-    ParameterSpec('port', 8081, 'TCP port to serve on (0: any free port, logged at start-up).',
-                  read_only=True, bounds=(0, 65535)),
-    ParameterSpec('cloud_step', 8, 'Point cloud: every Nth pixel of the depth image in each '
-                  'direction (8: 80x60 points of a 640x480 image).', bounds=(1, 64)),
-)
 
 
 class View3dNode(Node):
@@ -54,7 +45,10 @@ class View3dNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__(NODE_NAME, **kwargs)
-        values = declare_parameters(self, _PARAMETERS)
+        self.settings = s = View3dSettings.from_values(
+            declare_parameters(self, VIEW3D_PARAMETERS))
+        follow_settings(self, VIEW3D_PARAMETERS, View3dSettings.from_values,
+                        lambda settings: setattr(self, 'settings', settings))
         self.scene = Scene()
         self.scene.cloud = self._cloud
         self.scene.refresh = self._refresh
@@ -85,15 +79,14 @@ class View3dNode(Node):
         self.create_subscription(TFMessage, '/tf_static', self._tree.add_message, LATCHED_QOS)
         self.create_subscription(String, 'pick_ball/result', self._on_pick, LATCHED_QOS)
 
-        self._server = View3dServer(self.scene, values['address'], values['port'])
+        self._server = View3dServer(self.scene, s.address, s.port)
         try:
             self._server.start()
         except OSError as error:
             self.destroy_node()
-            raise OSError(f'cannot serve on {values["address"]} port {values["port"]}: '
-                          f'{error}') from error
-        if not is_loopback(values['address']):
-            self.get_logger().warning(f'serving on non-loopback address {values["address"]}: '
+            raise OSError(f'cannot serve on {s.address} port {s.port}: {error}') from error
+        if not is_loopback(s.address):
+            self.get_logger().warning(f'serving on non-loopback address {s.address}: '
                                       'anyone who can reach it sees the scene')
         self.get_logger().info(f'3D view at {self.url}')
 
@@ -196,7 +189,7 @@ class View3dNode(Node):
                                      info.header.frame_id)
             rgb = image_to_rgb(deserialize_message(color, Image)) if color else None
             return depth_cloud(image_to_depth(depth_msg), info.k, pose,
-                               self.get_parameter('cloud_step').value, rgb)
+                               self.settings.cloud_step, rgb)
         except (FrameLookupError, ValueError) as error:
             self.get_logger().warning(f'no point cloud: {error}', throttle_duration_sec=10.0)
             return None

@@ -16,7 +16,7 @@ from launch.launch_description_sources import get_launch_description_from_python
 from launch.utilities import perform_substitutions
 import pytest
 from ur_rg2_bringup.graph import describe_exit
-from ur_rg2_bringup.launch_defaults import file_parameter, next_port
+from ur_rg2_bringup.launch_defaults import as_argument, file_parameter, next_port
 from ur_rg2_bringup.launch_graph import graph_launch_file, warnings_and_errors
 from ur_rg2_bringup.run import UsageError, parse_args
 import yaml
@@ -162,6 +162,41 @@ def test_the_params_file_has_a_section_per_node_of_the_graph():
     assert 'port' not in params['/**/ur_rg2_view3d']['ros__parameters']
     assert 'detector' not in params['/**/ur_rg2_vision']['ros__parameters']
 
+
+
+def code_defaults() -> dict[str, dict]:
+    """Return each graph node's parameter defaults as its package's settings module has them."""
+    from ur_rg2_motion.settings import PARAMETERS as MOTION
+    from ur_rg2_sim.settings import PARAMETERS as SIM
+    from ur_rg2_tools.settings import VIEW3D_PARAMETERS
+    from ur_rg2_vision.settings import PARAMETERS as VISION
+    from ur_rg2_vision.settings import VIEWER_PARAMETERS
+    return {node: {spec.name: spec.default for spec in specs}
+            for node, specs in (('ur_rg2_sim', SIM), ('ur_rg2_vision', VISION),
+                                ('ur_rg2_motion', MOTION), ('ur_rg2_viewer', VIEWER_PARAMETERS),
+                                ('ur_rg2_view3d', VIEW3D_PARAMETERS))}
+
+
+def test_the_params_file_holds_the_defaults_written_in_the_code():
+    """graph.yaml is data people copy: each value is the default of the node's settings module."""
+    params = yaml.safe_load((ROOT / 'ros2_ws/src/ur_rg2_bringup/config/graph.yaml').read_text())
+    for node, defaults in code_defaults().items():
+        # The launch file's, not the file's: the detector, and the 3D view's port.
+        expected = {name: value for name, value in defaults.items()
+                    if (node, name) not in (('ur_rg2_vision', 'detector'),
+                                            ('ur_rg2_view3d', 'port'))}
+        assert params[f'/**/{node}']['ros__parameters'] == expected, node
+
+
+def test_launch_arguments_not_in_the_params_file_take_the_nodes_defaults(tmp_path):
+    empty = tmp_path / 'empty.yaml'
+    empty.write_text('{}\n')
+    values = argument_values(params_file=str(empty))
+    defaults = code_defaults()
+    for argument, node in (('robot_model', 'ur_rg2_sim'), ('gui', 'ur_rg2_sim'),
+                           ('camera_rate', 'ur_rg2_sim'), ('port', 'ur_rg2_viewer'),
+                           ('detector', 'ur_rg2_vision')):
+        assert values[argument] == as_argument(defaults[node][argument]), argument
 
 KNOWN = {'use_sim': ['true', 'false'], 'robot_model': ['ur5', 'ur3'], 'gui': ['true', 'false'],
          'camera_rate': None, 'port': None, 'namespace': None, 'view3d': ['true', 'false'],

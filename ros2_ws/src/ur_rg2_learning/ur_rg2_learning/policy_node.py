@@ -31,7 +31,7 @@ from ur_rg2_common.contract import (
     TRAJECTORY_ACTION,
 )
 from ur_rg2_common.episode import EpisodeMarkers
-from ur_rg2_common.parameters import ParameterSpec, declare_parameters
+from ur_rg2_common.parameters import declare_parameters, follow_settings
 from ur_rg2_common.spin import run_node
 from ur_rg2_motion.kinematics import ArmKinematics, KinematicsError
 from ur_rg2_motion.messages import FRAME_WAIT_S, gripper_goal, trajectory_goal
@@ -40,21 +40,11 @@ from ur_rg2_motion.urdf import BASE_LINK
 
 from ur_rg2_learning import PICK_ID, REACH_ID
 from ur_rg2_learning.actor import SHIPPED, Actor, PolicyError, shipped_policy
-from ur_rg2_learning.envs import BALL_RADIUS
 from ur_rg2_learning.episode import Episode, Outcome, start_episode
+from ur_rg2_learning.settings import PARAMETERS, PolicySettings
 
 NODE_NAME = 'ur_rg2_policy'
 _STEP_TIMEOUT = 10.0  # s for one step's goal to be answered and done, beyond its duration
-
-_PARAMETERS = (
-    ParameterSpec('policy_dir', 'reach', 'The policy to run: a directory written by '
-                  "train_policy --out, or a policy shipped with the package: 'reach', "
-                  "'pick' or 'pick_cloned' (empty: 'reach')", read_only=True),
-    ParameterSpec('ball_radius', BALL_RADIUS, "The ball's radius, m: Reach's goal is its top, "
-                  "Pick's success its bottom 10 cm above the floor", bounds=(0.005, 0.2)),
-    ParameterSpec('ball_timeout', 1.0, 'policy/run needs a ball/position received at most '
-                  'this long ago, s', bounds=(0.05, 60.0)),
-)
 
 
 class PolicyNode(Node):
@@ -62,8 +52,10 @@ class PolicyNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__(NODE_NAME, **kwargs)
-        values = declare_parameters(self, _PARAMETERS)
-        name = values['policy_dir'] or 'reach'
+        self.settings = PolicySettings.from_values(declare_parameters(self, PARAMETERS))
+        follow_settings(self, PARAMETERS, PolicySettings.from_values,
+                        lambda settings: setattr(self, 'settings', settings))
+        name = self.settings.policy_dir
         directory = shipped_policy(name) if name in SHIPPED else name
         self.actor = Actor.load(directory)
         if self.actor.env_id not in (REACH_ID, PICK_ID):
@@ -105,13 +97,13 @@ class PolicyNode(Node):
 
     def _ball_centre(self, wait: float = 0.0):
         """Return the ball's centre in base_link from the latest ball/position (ValueError)."""
-        return self.state.ball_centre(self.get_parameter('ball_timeout').value, wait)
+        return self.state.ball_centre(self.settings.ball_timeout, wait)
 
     # -- the episode ----------------------------------------------------------------------------
 
     def _on_run(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         response.success = False
-        radius = self.get_parameter('ball_radius').value
+        radius = self.settings.ball_radius
         try:
             with self._lock:
                 if self._episode is not None:

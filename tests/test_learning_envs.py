@@ -12,12 +12,15 @@ import numpy as np
 import pytest
 from ur_rg2_common.contract import ARM_JOINTS
 from ur_rg2_learning import PICK_ID, REACH_ID
+import ur_rg2_learning.envs
 from ur_rg2_learning.envs import (
     BALL_RADIUS,
     CONTROL_RATE,
     MAX_STEP,
     REACH_TOLERANCE,
     START_TCP,
+    VISION_BALL_NOISE,
+    BallNoise,
     move_target,
     start_joints,
     step_duration,
@@ -282,3 +285,39 @@ def test_shares_of_episodes_start_grasped_and_over_the_ball():
     finally:
         env.close()
     assert all(3 <= starts.count(kind) <= 20 for kind in ('grasped', 'over', 'free')), starts
+
+
+def test_ball_noise_perturbs_what_is_seen_of_the_ball_and_nothing_else():
+    true, noisy = gym.make(PICK_ID), ur_rg2_learning.envs.make(PICK_ID, 0.005)
+    try:
+        assert isinstance(noisy, BallNoise)
+        seen, truth = [noisy.reset(seed=7)[0]], [true.reset(seed=7)[0]]
+        offset = seen[0]['desired_goal'] - truth[0]['desired_goal']
+        for _ in range(30):
+            action = pick_action(truth[-1])
+            a, b = noisy.step(action), true.step(action)
+            assert a[1:] == b[1:]  # rewards, ends and success: the true ones
+            seen.append(a[0])
+            truth.append(b[0])
+        errors = []
+        for previous, s, t in zip(seen, seen[1:], truth[1:]):
+            ball = s['observation'][7:10]
+            assert np.allclose(s['observation'][:7], t['observation'][:7])  # TCP, gripper
+            assert np.allclose(s['achieved_goal'], ball)
+            assert np.allclose(s['observation'][10:13], ball - s['observation'][:3], atol=1e-6)
+            assert np.allclose(s['observation'][13:16],
+                               (ball - previous['achieved_goal']) * CONTROL_RATE, atol=1e-4)
+            assert np.allclose(s['desired_goal'] - t['desired_goal'], offset, atol=1e-6)
+            errors.append(ball - t['achieved_goal'])
+        assert 0.003 < np.std(errors) < 0.008  # 5 mm per axis
+        # Repeats under a seed; the episode placed as without noise.
+        again = noisy.reset(seed=7)[0]
+        assert np.array_equal(again['achieved_goal'], seen[0]['achieved_goal'])
+        assert np.allclose(again['observation'][:3], truth[0]['observation'][:3])
+    finally:
+        true.close()
+        noisy.close()
+    assert 0.001 < VISION_BALL_NOISE < 0.002
+    with pytest.raises(ValueError, match='for Pick'):
+        ur_rg2_learning.envs.make(REACH_ID, 0.001)
+    assert not isinstance(ur_rg2_learning.envs.make(PICK_ID, 0.0), BallNoise)

@@ -244,16 +244,19 @@ def test_a_short_pick_run_records_what_trained_it(tmp_path):
         [str(BIN / 'train_policy'), '--env', PICK_ID, '--timesteps', '100', '--seed', '0',
          '--out', str(out), '--demos', '2', '--bc', '2.5', '--critic-warmup', '20',
          '--grasped-share', '0.5', '--net', '32', '32', '--eval-every', '100',
-         '--eval-episodes', '1', '--final-episodes', '2'],
+         '--eval-episodes', '1', '--final-episodes', '2', '--obs-noise', 'vision'],
         capture_output=True, text=True, timeout=400)
     assert trained.returncode == 0, trained.stderr
     actor = Actor.load(out)
     meta = actor.meta
     assert actor.env_id == PICK_ID and meta['algo'] == 'td3' and meta['demos'] == 2
     assert meta['method'] == ('TD3 + HER + 2 scripted demos in the buffer + Q-filtered BC 2.5, '
-                              'critic warm-up 20, 0.5 of episodes start grasped')
+                              'critic warm-up 20, 0.5 of episodes start grasped, ball '
+                              'observed with 1.3 mm noise')
     assert meta['cloned_before_rl'] == 0 and meta['timesteps'] == 100
-    assert set(meta['held_out']) == {'episodes', 'seed', 'final_success', 'before_rl_success'}
+    assert meta['obs_noise_mm'] == 1.3 and meta['held_out']['obs_noise_mm'] == 1.3
+    assert set(meta['held_out']) == {'episodes', 'seed', 'obs_noise_mm', 'final_success',
+                                     'before_rl_success'}
     assert Actor.load(out / 'before_rl').meta['timesteps'] == 0
     rng = np.random.default_rng(0)
     assert success_rate(lambda _: rng.uniform(-1, 1, 4), EPISODES, SEED, PICK_ID) == 0.0
@@ -277,6 +280,14 @@ def test_seeds_run_as_ray_tasks_and_write_one_table(tmp_path):
     assert (out / 'seeds.png').read_bytes().startswith(b'\x89PNG')
     for seed in (0, 1):
         assert Actor.load(out / f'seed_{seed}').meta['seed'] == seed
+    # The same table from the written seeds (seeds trained one per process).
+    printed = subprocess.run(
+        [sys.executable, '-m', 'ur_rg2_learning.seeds', str(out / 'seed_1'), str(out / 'seed_0')],
+        capture_output=True, text=True, timeout=60)
+    assert printed.returncode == 0, printed.stderr
+    # All but the wall time, which policy.json keeps to 0.1 s.
+    assert [row.split('|')[1:6] for row in printed.stdout.splitlines()] == [
+        row.split('|')[1:6] for row in rows]
 
 
 def descendants(pid: int) -> set[int]:
@@ -343,3 +354,69 @@ def test_cloning_only_needs_a_cloning_term():
          '--demos', '2', '--cloning-only'], capture_output=True, text=True, timeout=120)
     assert refused.returncode == 2
     assert '--cloning-only keeps only the cloning term: give --bc' in refused.stderr
+
+
+def test_cloning_only_takes_out_the_q_term_and_nothing_else():
+    import torch
+    from ur_rg2_learning.train import Cloning, scripted_demonstrations
+
+    demonstrations = scripted_demonstrations(PICK_ID, 1)
+    env = gym.make(PICK_ID)
+    try:
+        model = td3_on_pick(env, demonstrations, [16, 16], 1.0, None, 5.0)
+        model.cloning = Cloning(model, demonstrations, 1.0, alone=True)
+        data = model.replay_buffer.sample(32)
+        losses = []
+        actor = model.actor
+        actor.optimizer.step = lambda: None  # the loss's gradient is what is compared
+
+        def gradient() -> torch.Tensor:
+            actor.optimizer.zero_grad()
+            model.update_actor(data, 32)
+            return torch.cat([p.grad.flatten() for p in actor.parameters()])
+
+        for alone in (True, False):
+            model.cloning.alone = alone
+            model.cloning._rng = np.random.default_rng(0)  # the same demonstrated batch
+            losses.append(gradient())
+        model.cloning.alone = True
+        model.cloning._rng = np.random.default_rng(0)
+        minus_q = -model.critic.q1_forward(data.observations, actor(data.observations)).mean()
+        actor.optimizer.zero_grad()
+        minus_q.backward()
+        q_gradient = torch.cat([p.grad.flatten() for p in actor.parameters()])
+        # The full update is the ablation's plus the -Q term: the filter and the penalty stay.
+        assert torch.allclose(losses[1], losses[0] + q_gradient, atol=1e-5)
+        assert model.cloning.q_filter
+    finally:
+        env.close()
+
+
+def test_evaluate_policy_final_range_and_ball_noise(monkeypatch, capsys):
+    from ur_rg2_learning import evaluate
+
+    calls = []
+    monkeypatch.setattr(evaluate, 'success_rate',
+                        lambda actor, episodes, seed, ball_noise: calls.append(
+                            (episodes, seed, ball_noise)) or 0.5)
+    assert evaluate.main(['--policy', 'pick', '--final']) == 0
+    assert evaluate.main(['--policy', 'pick', '--obs-noise', 'vision', '--episodes', '3']) == 0
+    assert calls == [(100, evaluate.FINAL_TEST_SEED, 0.0),
+                     (3, evaluate.DEFAULT_SEED, pytest.approx(0.0013))]
+    assert capsys.readouterr().out == (
+        'success rate 0.50 over 100 episodes (final test range 2000000-2000099)\n'
+        'success rate 0.50 over 3 episodes (ball noise 1.3 mm per axis)\n')
+    for wrong in (['--final', '--episodes', '5'], ['--final', '--seed', '5'],
+                  ['--obs-noise', '-1']):
+        with pytest.raises(SystemExit):
+            evaluate.main(['--policy', 'pick', *wrong])
+    monkeypatch.undo()
+    assert evaluate.main(['--policy', 'reach', '--obs-noise', '1', '--episodes', '1']) == 2
+    assert 'ball noise is for Pick' in capsys.readouterr().err
+
+
+def test_obs_noise_is_for_pick():
+    refused = subprocess.run(
+        [str(BIN / 'train_policy'), '--env', REACH_ID, '--timesteps', '10', '--out', '/dev/null',
+         '--obs-noise', '1'], capture_output=True, text=True, timeout=120)
+    assert refused.returncode == 2 and '--obs-noise are for UrRg2Pick-v0' in refused.stderr

@@ -62,6 +62,13 @@ GRASP_GAP = 0.002  # m: a grasped start's fingers close from this far apart roun
 OVER_BALL_HEIGHT = 0.08  # m
 OVER_BALL_JITTER = 0.01  # m
 NEAR_BALL = 0.15  # m, ball centre to TCP: nearer, Pick steps the physics finely (a grasp)
+# m, per axis: the standard deviation of Gaussian noise on the ball's position that matches the
+# vision node's 3D error at its tail: p95 2.80 sigma = 3.6 mm (the learned detector's 3.57 mm on
+# `python -m bench detector`'s hard set, 3.37 mm on plain balls), median 1.54 sigma = 2.0 mm
+# (vision's is 1.03 mm: the noise is at least vision's at both).
+VISION_BALL_NOISE = 0.0013
+# Where Pick's observation has the ball: its position, its offset from the TCP, its velocity.
+BALL_SLICE, OFFSET_SLICE, BALL_VELOCITY_SLICE = slice(7, 10), slice(10, 13), slice(13, 16)
 
 
 _DOWN = gripper_down((0.0, 0.0, 0.0), 0.0)
@@ -458,3 +465,64 @@ class PickEnv(UrRg2Env):
         """Return 0 where the ball is within PICK_GOAL_TOLERANCE of the goal, else -1."""
         distance = np.linalg.norm(np.asarray(achieved_goal) - np.asarray(desired_goal), axis=-1)
         return -(distance > PICK_GOAL_TOLERANCE).astype(np.float32)
+
+
+class BallNoise(gym.Wrapper):
+    """Pick with the ball observed as a camera sees it: its true position plus Gaussian noise.
+
+    Each step draws fresh noise of ``std`` (m) per axis, independent of the last (the camera
+    sees each frame anew), and everything the policy reads of the ball comes from that noisy
+    position, as the policy node builds it from vision's estimate: the ball's position, its
+    offset from the TCP, its velocity (the difference of the last two noisy positions) and
+    ``achieved_goal``; ``desired_goal`` is offset by the reset's noise (the node sets the goal
+    from its first sighting). Rewards and success stay the true ones. The noise repeats under
+    a reset's seed and draws nothing from the environment's own generator, so a seed places
+    the ball and the TCP as without noise.
+    """
+
+    def __init__(self, env: gym.Env, std: float) -> None:
+        super().__init__(env)
+        if std < 0:
+            raise ValueError(f'the noise must not be negative, not {std}')
+        self.std = std
+        self._rng = np.random.default_rng()
+        self._seen = np.zeros(3)
+        self._goal_offset = np.zeros(3)
+
+    def reset(self, *, seed: int | None = None,
+              options: dict[str, Any] | None = None) -> tuple[dict, dict]:
+        """Reset the environment, then observe its ball with noise (seeded by ``seed``)."""
+        observation, info = self.env.reset(seed=seed, options=options)
+        if seed is not None:
+            self._rng = np.random.default_rng([seed, 0xBA11])
+        self._goal_offset = self._rng.normal(0.0, self.std, 3)
+        self._seen = observation['achieved_goal'] + self._goal_offset
+        return self._noisy(observation, self._seen, np.zeros(3)), info
+
+    def step(self, action: np.ndarray) -> tuple[dict, float, bool, bool, dict]:
+        """Step the environment; its observation with the ball seen with fresh noise."""
+        observation, reward, terminated, truncated, info = self.env.step(action)
+        seen = observation['achieved_goal'] + self._rng.normal(0.0, self.std, 3)
+        velocity = (seen - self._seen) * CONTROL_RATE
+        self._seen = seen
+        return self._noisy(observation, seen, velocity), reward, terminated, truncated, info
+
+    def _noisy(self, observation: dict, seen: np.ndarray, velocity: np.ndarray) -> dict:
+        state = observation['observation'].astype(np.float64)
+        state[BALL_SLICE] = seen
+        state[OFFSET_SLICE] = seen - state[:3]
+        state[BALL_VELOCITY_SLICE] = velocity
+        return {'observation': state.astype(np.float32),
+                'achieved_goal': seen.astype(np.float32),
+                'desired_goal': (observation['desired_goal'] + self._goal_offset)
+                .astype(np.float32)}
+
+
+def make(env_id: str, ball_noise: float = 0.0, **kwargs: Any) -> gym.Env:
+    """Return ``gym.make(env_id, **kwargs)``, with :class:`BallNoise` when ``ball_noise`` > 0."""
+    env = gym.make(env_id, **kwargs)
+    if not ball_noise:
+        return env
+    if not isinstance(env.unwrapped, PickEnv):
+        raise ValueError(f'ball noise is for Pick, not {env_id}')
+    return BallNoise(env, ball_noise)

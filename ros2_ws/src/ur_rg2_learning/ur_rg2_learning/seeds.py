@@ -4,14 +4,18 @@ Each task (:func:`ur_rg2_learning.ray_tasks.ray_map`: a local Ray, or an existin
 returns its actors and curve as plain data, so the workers need no shared disk: this process
 writes ``seed_N/`` for each seed, ``seeds.md`` (the table) and ``seeds.png`` (the curves).
 Only train_policy imports this module; nothing on the run path needs Ray.
+
+``python -m ur_rg2_learning.seeds DIR ...`` prints the same table for seeds trained one per
+process (``train_policy --seed N --out DIR``), from what each wrote.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
+import sys
 from typing import Any
 
-from ur_rg2_learning.actor import write_atomically
+from ur_rg2_learning.actor import Actor, write_atomically
 from ur_rg2_learning.ray_tasks import markdown_table, ray_map
 from ur_rg2_learning.train import plot_curves, summary, train_seed, write_result
 
@@ -42,3 +46,29 @@ def table(results: list[dict[str, Any]]) -> str:
                      f"{r['best_success']:.2f} at {r['best_steps']}", f"{r['before_rl']:.2f}",
                      str(r['steps']), f"{r['seconds'] / 60:.1f} min"))
     return markdown_table(rows)
+
+
+def written_result(directory: Path) -> dict[str, Any]:
+    """Return a written seed's row of the table: its policy.json, its best/ and held-out scores."""
+    meta = Actor.load(directory).meta
+    best = Actor.load(directory / 'best').meta['best_of_curve']
+    held_out = meta['held_out']
+    return {'seed': meta['seed'], 'final': held_out['final_success'],
+            'before_rl': held_out['before_rl_success'], 'final_episodes': held_out['episodes'],
+            'best_success': best['success'], 'best_steps': best['steps'],
+            'steps': meta['timesteps'], 'seconds': meta['train_seconds']}
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Print the seeds' table of the train_policy --out directories given; exit code 0."""
+    directories = sys.argv[1:] if argv is None else argv
+    if not directories:
+        print('usage: python -m ur_rg2_learning.seeds DIR ... (train_policy --out directories)',
+              file=sys.stderr)
+        return 2
+    print(table([written_result(Path(directory)) for directory in directories]), end='')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -10,8 +10,11 @@ moves, ``--grasped-share S`` starts that share of the training episodes with the
 between the fingers (Fetch's trick) and ``--over-ball-share S`` with the open fingers round
 or over it (evaluation episodes never start either way). ``--clip-return`` clips the critic's
 targets to the returns Pick's rewards allow and ``--action-l2 W`` penalises the actor's moves
-(both as the HER baselines do). Inputs are standardised with the demonstrations' (or a few
-random episodes') mean and deviation, fixed for the run.
+(both as the HER baselines do). ``--obs-noise MM`` observes the ball with Gaussian noise of
+MM mm per axis in training and in its evaluations (:class:`ur_rg2_learning.envs.BallNoise`:
+in the graph, the vision node's estimate takes the true ball's place). Inputs are
+standardised with the demonstrations' (or a few random episodes') mean and deviation, fixed
+for the run.
 
 ``--seed N`` trains one seed in this process; ``--seeds A B ...`` trains each as a Ray task
 (a local Ray with ``--num-cpus`` by default, an existing cluster with ``--address``) and writes
@@ -42,7 +45,8 @@ import numpy as np
 
 from ur_rg2_learning import EPISODE_STEPS, PICK_ID, REACH_ID
 from ur_rg2_learning.actor import Actor, write_atomically
-from ur_rg2_learning.evaluate import DEFAULT_SEED, success_rate
+from ur_rg2_learning.envs import make
+from ur_rg2_learning.evaluate import DEFAULT_SEED, noise_mm, success_rate
 
 # Curve episodes are seeded apart from training (small seeds) and from evaluate_policy's.
 CURVE_SEED = 500_000
@@ -98,8 +102,9 @@ def parser() -> argparse.ArgumentParser:
                    help='clone every demonstrated step, not only those the critic rates above '
                    'the actor')
     p.add_argument('--cloning-only', action='store_true',
-                   help='ablation: the actor learns from the cloning term alone, without the '
-                   "algorithm's -Q term (the critic still learns; needs --bc)")
+                   help="ablation: the algorithm's -Q term taken out of the actor updates, "
+                   'nothing else (the Q-filter, unless --no-q-filter, and --action-l2 stay; '
+                   'the critic still learns; needs --bc)')
     p.add_argument('--critic-warmup', type=int, default=0,
                    help='critic updates on the demonstrations before the first step (0)')
     p.add_argument('--grasped-share', type=float, default=0.0,
@@ -114,6 +119,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument('--action-l2', type=float, default=0.0,
                    help="weight of a penalty on the actor's squared moves (0; the HER "
                    'baselines use 1)')
+    p.add_argument('--obs-noise', type=noise_mm, default=0.0, metavar='MM',
+                   help=f"{PICK_ID} only: Gaussian noise on the observed ball, mm per axis, or "
+                   "'vision' (training and its evaluations; 0: none)")
     p.add_argument('--net', type=int, nargs='+', default=HYPERPARAMETERS['net_arch'],
                    help='hidden layer sizes of actor and critic (%(default)s)')
     p.add_argument('--actor-lr-share', type=float, default=HYPERPARAMETERS['actor_lr_share'],
@@ -134,9 +142,9 @@ def main(argv: list[str] | None = None) -> int:
         p.error('--timesteps and --eval-episodes must be positive; --demos, --bc, '
                 '--critic-warmup, --minutes and --final-episodes not negative')
     if (args.demos or args.grasped_share or args.over_ball_share
-            or args.clip_return) and args.env != PICK_ID:
-        p.error(f'--demos, --grasped-share, --over-ball-share and --clip-return are for '
-                f'{PICK_ID}')
+            or args.clip_return or args.obs_noise) and args.env != PICK_ID:
+        p.error(f'--demos, --grasped-share, --over-ball-share, --clip-return and --obs-noise '
+                f'are for {PICK_ID}')
     if (args.bc or args.critic_warmup) and not args.demos:
         p.error('--bc and --critic-warmup train on the demonstrations: give --demos')
     if args.cloning_only and not args.bc:
@@ -206,7 +214,8 @@ def train_seed(config: dict[str, Any], seed: int) -> dict[str, Any]:
     make_kwargs = ({'grasped_share': config['grasped_share'],
                     'over_ball_share': config.get('over_ball_share', 0.0)}
                    if env_id == PICK_ID else {})
-    env = gym.make(env_id, **make_kwargs)
+    noise = config.get('obs_noise', 0.0) / 1000  # m
+    env = make(env_id, noise, **make_kwargs)
     demonstrations = scripted_demonstrations(env_id, config['demos'])
     mean, std = input_scaling(env_id, demonstrations)
     size = env.action_space.shape[0]
@@ -246,7 +255,7 @@ def train_seed(config: dict[str, Any], seed: int) -> dict[str, Any]:
 
     def evaluate(steps: int) -> None:
         actor = export(model, record, steps, time.monotonic() - started, curve)
-        rate = success_rate(actor, config['eval_episodes'], CURVE_SEED, env_id)
+        rate = success_rate(actor, config['eval_episodes'], CURVE_SEED, env_id, noise)
         if not curve or rate >= max(point[1] for point in curve):
             # The best point's actor is kept too (the latest of equals: it has learned the
             # longest); the run's result is the final actor, not this one.
@@ -272,10 +281,12 @@ def train_seed(config: dict[str, Any], seed: int) -> dict[str, Any]:
     final = export(model, record, steps, seconds, curve)
     env.close()
     episodes = config['final_episodes']
-    scores = {name: (success_rate(actor, episodes, DEFAULT_SEED) if episodes else float('nan'))
+    scores = {name: (success_rate(actor, episodes, DEFAULT_SEED, ball_noise=noise)
+                     if episodes else float('nan'))
               for name, actor in (('final', final), ('before_rl', before_rl))}
     for actor in (final, before_rl, best['actor']):
         actor.meta['held_out'] = {'episodes': episodes, 'seed': DEFAULT_SEED,
+                                  'obs_noise_mm': config.get('obs_noise', 0.0),
                                   'final_success': scores['final'],
                                   'before_rl_success': scores['before_rl']}
     best['actor'].meta['best_of_curve'] = {'steps': best['steps'], 'success': best['success']}
@@ -326,6 +337,8 @@ def method(config: dict[str, Any]) -> str:
         words += ', returns clipped'
     if config.get('action_l2'):
         words += f", action L2 {config['action_l2']:g}"
+    if config.get('obs_noise'):
+        words += f", ball observed with {config['obs_noise']:g} mm noise"
     return words
 
 
@@ -599,6 +612,7 @@ def export(model, record: dict[str, Any], steps: int, seconds: float,
         'over_ball_share': record.get('over_ball_share', 0.0),
         'clip_return': record.get('clip_return', False),
         'action_l2': record.get('action_l2', 0.0),
+        'obs_noise_mm': record.get('obs_noise', 0.0),
         'train_seconds': round(seconds, 1),
         'hyperparameters': dict(HYPERPARAMETERS, net_arch=record['net'],
                                 actor_lr_share=record['actor_lr_share'],

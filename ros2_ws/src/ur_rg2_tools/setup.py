@@ -26,6 +26,7 @@ setup(
             'recover = ur_rg2_tools.entry:recover',
             'info = ur_rg2_tools.entry:info',
             'to_lerobot = ur_rg2_tools.entry:to_lerobot',
+            'demos = ur_rg2_tools.entry:demos',
             'view3d = ur_rg2_tools.entry:view3d',
         ],
     },

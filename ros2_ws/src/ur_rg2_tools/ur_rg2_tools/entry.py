@@ -28,6 +28,11 @@ def to_lerobot() -> int:
     return run_main('ur_rg2_tools.to_lerobot')
 
 
+def demos() -> int:
+    """Record N pick episodes of the running graph (ur_rg2_tools.demos_node)."""
+    return run_main('ur_rg2_tools.demos_node')
+
+
 def view3d() -> int:
     """Run the 3D view (ur_rg2_tools.view3d_node)."""
     return run_main('ur_rg2_tools.view3d_node')

@@ -13,12 +13,9 @@ is :mod:`ur_rg2_tools.demos`; this module is the ROS side and ``main``.
 
 from __future__ import annotations
 
-from collections import deque
 from collections.abc import Callable, Sequence
 import signal
-import subprocess
 import sys
-import threading
 import time
 
 from geometry_msgs.msg import PointStamped
@@ -39,6 +36,7 @@ from ur_rg2_interfaces.action import PickBall
 from ur_rg2_vision.placement import Camera
 from ur_rg2_vision.ros_image import camera_matrix
 
+from ur_rg2_tools.child_recorder import Recorder
 from ur_rg2_tools.demos import (
     TOPICS,
     DemosError,
@@ -224,45 +222,6 @@ class GraphDriver(Node):
                    for topic in topics)
 
 
-class Recorder:
-    """``record`` as a child process in its own session (a Ctrl-C in the terminal is ours)."""
-
-    def __init__(self, output: str, every_topic: bool, wait: float) -> None:
-        command = [sys.executable, '-m', 'ur_rg2_tools.record_node', '-o', output,
-                   '--wait', f'{wait:g}', *(['--all'] if every_topic else TOPICS)]
-        self.lines: deque[str] = deque(maxlen=20)
-        self.process = subprocess.Popen(command, stdin=subprocess.DEVNULL,
-                                        stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                        text=True, start_new_session=True)
-        self._drain = threading.Thread(target=self._read, daemon=True)
-        self._drain.start()
-
-    def _read(self) -> None:
-        for line in self.process.stdout:
-            self.lines.append(line.rstrip())
-
-    def alive(self) -> bool:
-        """Tell whether it still runs."""
-        return self.process.poll() is None
-
-    def output(self) -> str:
-        """Return its last lines."""
-        return '\n'.join(self.lines)
-
-    def stop(self) -> str | None:
-        """Stop it as Ctrl-C does (the file finished); return what went wrong, or None."""
-        if self.alive():
-            self.process.send_signal(signal.SIGINT)
-        try:
-            code = self.process.wait(timeout=120)
-        except subprocess.TimeoutExpired:
-            self.process.kill()
-            self.process.wait()
-            return 'the recorder did not stop within 120 s and was killed'
-        self._drain.join(timeout=5)
-        return None if code == 0 else f'the recorder ended with code {code}:\n{self.output()}'
-
-
 def say(line: str) -> None:
     """Print a progress line."""
     print(f'demos: {line}', flush=True)
@@ -299,7 +258,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     started = False
     try:
         scene = driver.wait_for_graph()
-        recorder = Recorder(options.output, options.all, options.timeout_s)
+        recorder = Recorder(options.output, None if options.all else TOPICS, options.timeout_s)
         driver.spin_until(lambda: driver.recorder_ready(TOPICS) or not recorder.alive(),
                           'the recorder to subscribe to ' + ', '.join(TOPICS))
         if not recorder.alive():

@@ -5,8 +5,10 @@ test's private domain; a subscriber beside the recorder counts what was publishe
 """
 
 from collections import Counter, defaultdict
+import json
 import re
 import struct
+import urllib.request
 
 from conftest import RosGraph, start_sim, wait_for
 from geometry_msgs.msg import PointStamped
@@ -151,7 +153,9 @@ def test_round_trip_record_the_sim_read_back_replay_into_vision(ros_graph, tmp_p
                           graph.env, tmp_path / 'replay.log')
 
         def replayed() -> bool:
-            scene = view.scene.document()
+            # As a page asks for it: the 3D view reads its topics when the scene is asked for.
+            with urllib.request.urlopen(view.url + 'scene', timeout=10) as response:
+                scene = json.loads(response.read())
             return (len(found) >= 3 and set(ARM_JOINTS) <= set(scene.get('joints', ()))
                     and view.scene.description() is not None and 'camera' in scene)
 

@@ -220,14 +220,15 @@ class _Probe:
 
 
 @contextmanager
-def _graph(domain_id: int, camera: bool, policy: bool = False) -> Iterator[_Probe]:
+def _graph(domain_id: int, camera: bool, policy: bool = False,
+           policy_dir: str = 'pick') -> Iterator[_Probe]:
     sim_parameters = {} if camera else {'camera_rate': '0.0'}
     with node_process('sim', sim_parameters, domain_id, ready='simulating',
                       timeout=START_TIMEOUT_S), \
             node_process('vision', {}, domain_id, ready='looking for the ball',
                          timeout=START_TIMEOUT_S) if camera else nullcontext(), \
             node_process('motion', {}, domain_id, ready='ready:', timeout=START_TIMEOUT_S), \
-            node_process('policy', {'policy_dir': 'pick'}, domain_id,
+            node_process('policy', {'policy_dir': policy_dir}, domain_id,
                          ready='starts an episode', timeout=START_TIMEOUT_S) if policy \
             else nullcontext(), \
             spun_node('motion_bench', domain_id) as node:
@@ -235,17 +236,17 @@ def _graph(domain_id: int, camera: bool, policy: bool = False) -> Iterator[_Prob
 
 
 def pick_trials(count: int, domain_id: int, policy: bool = False, seed: int = SEED,
-                region: str = 'pick_ball') -> dict:
+                region: str = 'pick_ball', policy_dir: str = 'pick') -> dict:
     """Run ``count`` picks placed in ``region`` by ``seed``; return tallies and times.
 
-    ``policy``: the learned pick (``policy/run``) instead of ``pick_ball``; it claims no
-    success in its answer, so a held ball is its success.
+    ``policy``: the learned pick (``policy/run``, the policy node's ``policy_dir``) instead of
+    ``pick_ball``; it claims no success in its answer, so a held ball is its success.
     """
     rng = np.random.default_rng(seed)
     draw = placement(region)
     tally = {'success': 0, 'false_claim': 0, 'failed': 0, 'not_seen': 0, 'times': [],
              'sim_times': [], 'failures': []}
-    with _graph(domain_id, camera=True, policy=policy) as probe:
+    with _graph(domain_id, camera=True, policy=policy, policy_dir=policy_dir) as probe:
         for trial in range(count):
             at = draw(rng)
             # Each pick starts where the last one ended (the ball up in the gripper): drop it,
@@ -331,7 +332,8 @@ PARTS = ('ik', 'jog', 'pick', 'policy')
 
 
 def run(picks: int = PICKS, policy_picks: int = POLICY_PICKS, parts: tuple[str, ...] = PARTS,
-        seed: int = SEED, region: str | None = None) -> list[tuple[str, str, str]]:
+        seed: int = SEED, region: str | None = None,
+        policy_dir: str = 'pick') -> list[tuple[str, str, str]]:
     """Return the benchmark rows (metric, measured, target) of ``parts``.
 
     ``region``: where both picks place the ball (default: pick_ball's for pick_ball, the Pick
@@ -354,7 +356,8 @@ def run(picks: int = PICKS, policy_picks: int = POLICY_PICKS, parts: tuple[str, 
     if 'pick' in parts and picks:
         rows += pick_rows(picks, domain_id + 1, seed, region or 'pick_ball')
     if 'policy' in parts and policy_picks:
-        rows += policy_pick_rows(policy_picks, domain_id + 2, seed, region or 'pick_env')
+        rows += policy_pick_rows(policy_picks, domain_id + 2, seed, region or 'pick_env',
+                                 policy_dir)
     return rows
 
 
@@ -385,14 +388,15 @@ def pick_rows(picks: int, domain_id: int, seed: int, region: str) -> list[tuple[
     ]
 
 
-def policy_pick_rows(picks: int, domain_id: int, seed: int = SEED,
-                     region: str = 'pick_env') -> list[tuple[str, str, str]]:
-    """Return the rows of the learned pick (policy_dir:=pick) in the live graph."""
-    tally = pick_trials(picks, domain_id, policy=True, seed=seed, region=region)
+def policy_pick_rows(picks: int, domain_id: int, seed: int = SEED, region: str = 'pick_env',
+                     policy_dir: str = 'pick') -> list[tuple[str, str, str]]:
+    """Return the rows of the learned pick (policy_dir:=pick by default) in the live graph."""
+    tally = pick_trials(picks, domain_id, policy=True, seed=seed, region=region,
+                        policy_dir=policy_dir)
     tried, rate, median, simulated, load = _summary(tally, 'policy pick')
     return [
-        (f'learned Pick (policy node, policy_dir:=pick) in the graph: ball held over {tried} '
-         f'placements (seed {seed}, {region_name(region)}; real-time factor 1, camera)',
+        (f'learned Pick (policy node, policy_dir:={policy_dir}) in the graph: ball held over '
+         f'{tried} placements (seed {seed}, {region_name(region)}; real-time factor 1, camera)',
          f"{rate:.0%} ({tally['success']} held; {tally['not_seen']} not seen; {load})",
          '>= 90%'),
         ('learned Pick time, median (policy/run to the episode end, real-time factor 1)',
@@ -414,12 +418,15 @@ def main(argv: list[str] | None = None) -> int:
                         help=f'learned Pick placements (default {POLICY_PICKS})')
     parser.add_argument('--seed', type=int, default=SEED,
                         help=f'seed of the ball placements (default {SEED})')
+    parser.add_argument('--policy', default='pick', metavar='DIR',
+                        help="the learned pick's policy_dir: a shipped policy's name or a "
+                        'directory (default pick)')
     parser.add_argument('--region', choices=sorted(REGIONS),
                         help="where both picks place the ball (default: pick_ball's for "
                              "pick_ball, the Pick environment's for the learned pick)")
     options = parser.parse_args(argv)
     print_table(run(options.picks, options.policy_picks, tuple(options.parts), options.seed,
-                    options.region))
+                    options.region, options.policy))
     return 0
 
 

@@ -16,6 +16,12 @@ in the graph, the vision node's estimate takes the true ball's place). Inputs ar
 standardised with the demonstrations' (or a few random episodes') mean and deviation, fixed
 for the run.
 
+``--dataset DIR`` trains Pick from a LeRobot data set recorded in the graph
+(:mod:`ur_rg2_learning.dataset_demos`): ``--bc-epochs`` of behaviour cloning of its steps into
+the actor, then, with ``--finetune-steps N``, N steps of the same TD3 + HER training with the
+data set's steps in the replay buffer in place of the scripted demonstrations (``--bc`` and
+the other options as above).
+
 ``--seed N`` trains one seed in this process; ``--seeds A B ...`` trains each as a Ray task
 (a local Ray with ``--num-cpus`` by default, an existing cluster with ``--address``) and writes
 one table and one picture of the seeds' curves. ``--minutes`` bounds each seed's wall time:
@@ -45,6 +51,13 @@ import numpy as np
 
 from ur_rg2_learning import EPISODE_STEPS, PICK_ID, REACH_ID
 from ur_rg2_learning.actor import Actor, write_atomically
+from ur_rg2_learning.dataset_demos import (
+    CAMERA_LOOK_AT,
+    CAMERA_POSITION,
+    DatasetError,
+    dataset_demonstrations,
+    read_dataset,
+)
 from ur_rg2_learning.envs import make
 from ur_rg2_learning.evaluate import DEFAULT_SEED, noise_mm, success_rate
 
@@ -69,14 +82,31 @@ HYPERPARAMETERS = {
 }
 INPUT_STD_FLOOR = 0.05  # m, m/s: the least deviation an input is standardised with
 NORMALISE_EPISODES = 10  # random episodes that set the input scaling when there are no demos
+CLONING_LR = 1e-3  # --dataset: Adam's learning rate for the cloning
+DATASET_BC_EPOCHS = 300  # --dataset: passes of behaviour cloning over the data set's steps
 
 
 def parser() -> argparse.ArgumentParser:
     """Return train_policy's argument parser."""
     p = argparse.ArgumentParser(prog='train_policy', description=__doc__.split('\n')[0])
-    p.add_argument('--env', required=True, choices=[REACH_ID, PICK_ID])
+    p.add_argument('--env', choices=[REACH_ID, PICK_ID],
+                   help=f'the environment (required; {PICK_ID} with --dataset)')
     p.add_argument('--algo', default='td3', choices=list(ALGORITHMS))
-    p.add_argument('--timesteps', type=int, required=True, help='environment steps (at most)')
+    p.add_argument('--timesteps', type=int,
+                   help='environment steps (at most; required unless --dataset)')
+    p.add_argument('--dataset', metavar='DIR',
+                   help=f"{PICK_ID} from a LeRobot data set (to_lerobot's): behaviour cloning "
+                   'of its steps, then --finetune-steps of TD3 + HER with them in the buffer')
+    p.add_argument('--bc-epochs', type=int, default=DATASET_BC_EPOCHS,
+                   help='with --dataset: epochs of behaviour cloning (%(default)s)')
+    p.add_argument('--finetune-steps', type=int, default=0,
+                   help='with --dataset: environment steps of TD3 + HER after the cloning (0)')
+    p.add_argument('--camera-position', type=float, nargs=3, metavar=('X', 'Y', 'Z'),
+                   default=CAMERA_POSITION, help="with --dataset: the recording's camera_position "
+                   "(world, m; the sim's default %(default)s)")
+    p.add_argument('--camera-look-at', type=float, nargs=3, metavar=('X', 'Y', 'Z'),
+                   default=CAMERA_LOOK_AT, help="with --dataset: the recording's camera_look_at "
+                   '(%(default)s)')
     seeds = p.add_mutually_exclusive_group()
     seeds.add_argument('--seed', type=int, default=0, help='one seed, in this process (0)')
     seeds.add_argument('--seeds', type=int, nargs='+',
@@ -137,7 +167,19 @@ def main(argv: list[str] | None = None) -> int:
     """Train, export, plot; exit code 0, 2 without the learning set-up, 130 on Ctrl-C."""
     p = parser()
     args = p.parse_args(argv)
-    if args.timesteps < 1 or args.eval_episodes < 1 or args.final_episodes < 0 or min(
+    if args.dataset is not None:
+        if args.env not in (None, PICK_ID) or args.timesteps is not None or args.demos \
+                or args.seeds:
+            p.error(f'--dataset trains {PICK_ID}, one --seed, for --finetune-steps: no --env '
+                    'Reach, --timesteps, --demos or --seeds with it')
+        if args.bc_epochs < 1 or args.finetune_steps < 0:
+            p.error('--bc-epochs must be positive and --finetune-steps not negative')
+        args.env, args.timesteps = PICK_ID, args.finetune_steps
+    elif args.env is None or args.timesteps is None:
+        p.error('--env and --timesteps are required (or --dataset)')
+    elif args.timesteps < 1:
+        p.error('--timesteps must be positive')
+    if args.eval_episodes < 1 or args.final_episodes < 0 or min(
             args.demos, args.bc, args.critic_warmup, args.minutes, args.bc_fade) < 0:
         p.error('--timesteps and --eval-episodes must be positive; --demos, --bc, '
                 '--critic-warmup, --minutes and --final-episodes not negative')
@@ -145,8 +187,9 @@ def main(argv: list[str] | None = None) -> int:
             or args.clip_return or args.obs_noise) and args.env != PICK_ID:
         p.error(f'--demos, --grasped-share, --over-ball-share, --clip-return and --obs-noise '
                 f'are for {PICK_ID}')
-    if (args.bc or args.critic_warmup) and not args.demos:
-        p.error('--bc and --critic-warmup train on the demonstrations: give --demos')
+    if (args.bc or args.critic_warmup) and not (args.demos or args.dataset):
+        p.error('--bc and --critic-warmup train on the demonstrations: give --demos or '
+                '--dataset')
     if args.cloning_only and not args.bc:
         p.error('--cloning-only keeps only the cloning term: give --bc')
     if not (0.0 <= args.grasped_share and 0.0 <= args.over_ball_share
@@ -154,6 +197,12 @@ def main(argv: list[str] | None = None) -> int:
         p.error('--grasped-share and --over-ball-share are shares: 0 to 1, together too')
     if args.action_l2 < 0:
         p.error('--action-l2 must not be negative')
+    if args.dataset is not None:
+        try:
+            read_dataset(args.dataset)  # its errors now, before any training
+        except DatasetError as error:
+            print(f'train_policy: {error}', file=sys.stderr)
+            return 2
     try:
         import stable_baselines3  # noqa: F401
         import torch  # noqa: F401
@@ -174,6 +223,9 @@ def main(argv: list[str] | None = None) -> int:
         from ur_rg2_learning.seeds import run_seeds
 
         return run_seeds(config, args.seeds, out, args.num_cpus, args.address)
+    except DatasetError as error:
+        print(f'train_policy: {error}', file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print(f'train_policy: interrupted; nothing written to {out}', file=sys.stderr)
         return 130
@@ -216,7 +268,12 @@ def train_seed(config: dict[str, Any], seed: int) -> dict[str, Any]:
                    if env_id == PICK_ID else {})
     noise = config.get('obs_noise', 0.0) / 1000  # m
     env = make(env_id, noise, **make_kwargs)
-    demonstrations = scripted_demonstrations(env_id, config['demos'])
+    extra: dict[str, Any] = {}
+    if config.get('dataset'):
+        demonstrations, extra = dataset_demonstrations(
+            config['dataset'], env, config['camera_position'], config['camera_look_at'])
+    else:
+        demonstrations = scripted_demonstrations(env_id, config['demos'])
     mean, std = input_scaling(env_id, demonstrations)
     size = env.action_space.shape[0]
     h = HYPERPARAMETERS
@@ -243,8 +300,15 @@ def train_seed(config: dict[str, Any], seed: int) -> dict[str, Any]:
     model.set_logger(Logger(None, []))
     record = dict(config, seed=seed, observation_keys=list(env.observation_space.spaces),
                   action_low=env.action_space.low.tolist(),
-                  action_high=env.action_space.high.tolist())
+                  action_high=env.action_space.high.tolist(), extra_meta=extra)
     add_demonstrations(model.replay_buffer, demonstrations)
+    if config.get('dataset'):
+        loss, took = clone_actor(model, demonstrations, config['bc_epochs'], seed)
+        extra['cloned_before_rl'] = len(demonstrations['action'])
+        extra['cloning_loss'] = round(loss, 5)
+        print(f"cloned {len(demonstrations['action'])} steps of "
+              f"{extra['dataset']['episodes_used']} episodes, {config['bc_epochs']} epochs: "
+              f'loss {loss:.4f} in {took:.0f} s', flush=True)
     if config['bc']:
         model.cloning = Cloning(model, demonstrations, config['bc'], config['q_filter'],
                                 alone=config['cloning_only'], fade=config.get('bc_fade', 0))
@@ -273,7 +337,8 @@ def train_seed(config: dict[str, Any], seed: int) -> dict[str, Any]:
             return time.monotonic() < deadline
 
     evaluate(0)  # the actor before any reinforcement learning
-    model.learn(timesteps, callback=Steps())
+    if timesteps:
+        model.learn(timesteps, callback=Steps())
     steps = model.num_timesteps
     if curve[-1][0] != steps:
         evaluate(steps)
@@ -283,7 +348,9 @@ def train_seed(config: dict[str, Any], seed: int) -> dict[str, Any]:
     episodes = config['final_episodes']
     scores = {name: (success_rate(actor, episodes, DEFAULT_SEED, ball_noise=noise)
                      if episodes else float('nan'))
-              for name, actor in (('final', final), ('before_rl', before_rl))}
+              for name, actor in (('final', final), ('before_rl', before_rl))
+              if name == 'final' or steps}
+    scores.setdefault('before_rl', scores['final'])  # no RL step: the same actor
     for actor in (final, before_rl, best['actor']):
         actor.meta['held_out'] = {'episodes': episodes, 'seed': DEFAULT_SEED,
                                   'obs_noise_mm': config.get('obs_noise', 0.0),
@@ -318,7 +385,14 @@ def write_result(result: dict[str, Any], out: Path) -> None:
 
 def method(config: dict[str, Any]) -> str:
     """Return what trains the policy, in words."""
-    words = f"{ALGORITHMS[config['algo']]} + HER"
+    if config.get('dataset'):
+        words = (f"behaviour cloning ({config['bc_epochs']} epochs) of the data set "
+                 f"{Path(config['dataset']).name}'s episodes")
+        if not config['timesteps']:
+            return words
+        words += f", then {ALGORITHMS[config['algo']]} + HER with its steps in the buffer"
+    else:
+        words = f"{ALGORITHMS[config['algo']]} + HER"
     if config['demos']:
         words += f" + {config['demos']} scripted demos in the buffer"
     if config['bc']:
@@ -374,6 +448,40 @@ def scripted_demonstrations(env_id: str, episodes: int) -> dict[str, np.ndarray]
     finally:
         env.close()
     return {key: np.array(values) for key, values in rows.items()}
+
+
+def clone_actor(model, demonstrations: dict[str, np.ndarray], epochs: int,
+                seed: int) -> tuple[float, float]:
+    """Fit the model's actor to the demonstrated actions (mean squared error, Adam).
+
+    ``epochs`` passes in batches of the model's batch size; the actor's target is set to the
+    result. Return the last epoch's mean loss and the seconds taken.
+    """
+    import torch
+
+    started = time.monotonic()
+    device = model.device
+    observations = {key: torch.as_tensor(demonstrations[key], device=device)
+                    for key in model.observation_space.spaces}
+    actions = torch.as_tensor(demonstrations['action'], device=device)
+    optimizer = torch.optim.Adam(model.actor.parameters(), lr=CLONING_LR)
+    rng = np.random.default_rng(seed)
+    model.policy.set_training_mode(True)
+    loss_sum = 0.0
+    for _ in range(epochs):
+        order = torch.as_tensor(rng.permutation(len(actions)), device=device)
+        loss_sum, batches = 0.0, 0
+        for rows in order.split(model.batch_size):
+            predicted = model.actor({key: value[rows] for key, value in observations.items()})
+            loss = ((predicted - actions[rows]) ** 2).mean()
+            optimizer.zero_grad()
+            loss.backward()
+            optimizer.step()
+            loss_sum, batches = loss_sum + loss.item(), batches + 1
+        loss_sum /= batches
+    model.policy.set_training_mode(False)
+    model.actor_target.load_state_dict(model.actor.state_dict())
+    return loss_sum, time.monotonic() - started
 
 
 def add_demonstrations(buffer, demonstrations: dict[str, np.ndarray]) -> None:
@@ -603,6 +711,7 @@ def export(model, record: dict[str, Any], steps: int, seconds: float,
         'seed': record['seed'],
         'demos': record['demos'],
         'cloned_before_rl': 0,  # demonstrations cloned before the first update: none
+        **record.get('extra_meta', {}),
         'bc': record['bc'],
         'bc_fade': record.get('bc_fade', 0),
         'q_filter': record['q_filter'],

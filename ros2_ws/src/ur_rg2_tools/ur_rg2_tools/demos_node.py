@@ -13,7 +13,7 @@ is :mod:`ur_rg2_tools.demos`; this module is the ROS side and ``main``.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 import signal
 import sys
 import time
@@ -22,9 +22,7 @@ from geometry_msgs.msg import PointStamped
 from rcl_interfaces.srv import GetParameters, SetParameters
 import rclpy
 from rclpy.action import ActionClient
-from rclpy.executors import SingleThreadedExecutor
-from rclpy.node import Node
-from rclpy.parameter import Parameter, parameter_value_to_python
+from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_sensor_data
 from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
@@ -32,6 +30,7 @@ from sensor_msgs.msg import CameraInfo, JointState
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 from ur_rg2_common.contract import ARM_JOINTS, EPISODE_QOS, EPISODE_TOPIC, IMAGE_QOS
+from ur_rg2_common.self_spinning import SelfSpinningNode
 from ur_rg2_interfaces.action import PickBall
 from ur_rg2_vision.placement import Camera
 from ur_rg2_vision.ros_image import camera_matrix
@@ -58,15 +57,14 @@ GRAPH_HINT = ('is the graph running (scripts/run --headless, or ros2 launch ur_r
               'graph.launch.py) on this ROS_DOMAIN_ID?')
 
 
-class GraphDriver(Node):
+class GraphDriver(SelfSpinningNode):
     """Drives the graph for the episode loop; waits by spinning itself (one thread)."""
 
+    error = DemosError
+
     def __init__(self, timeout: float) -> None:
-        super().__init__(NODE_NAME)
-        self.timeout = timeout
+        super().__init__(NODE_NAME, timeout)
         self.stops = 0  # Ctrl-Cs so far: 1 stops after the episode, 2 at once
-        self._executor = SingleThreadedExecutor(context=self.context)
-        self._executor.add_node(self)
         self._get = self.create_client(GetParameters, f'{SIM_NODE}/get_parameters')
         self._set = self.create_client(SetParameters, f'{SIM_NODE}/set_parameters')
         self._reset = self.create_client(Trigger, 'reset')
@@ -95,20 +93,10 @@ class GraphDriver(Node):
     def _on_info(self, msg: CameraInfo) -> None:
         self.info = msg
 
-    def spin_until(self, predicate: Callable[[], object], what: str,
-                   timeout: float | None = None) -> object:
-        """Spin until ``predicate`` is truthy; DemosError after the timeout, StopNow on a stop."""
-        limit = self.timeout if timeout is None else timeout
-        deadline = time.monotonic() + limit
-        while True:
-            if self.stops >= 2:
-                raise StopNow()
-            value = predicate()
-            if value:
-                return value
-            if time.monotonic() > deadline:
-                raise DemosError(f'timed out after {limit:g} s waiting for {what}')
-            self._executor.spin_once(timeout_sec=0.02)
+    def check_stop(self) -> None:
+        """Raise StopNow after the second Ctrl-C."""
+        if self.stops >= 2:
+            raise StopNow()
 
     def wait_for_graph(self) -> Scene:
         """Wait for the sim, motion and the camera; return what placements need."""
@@ -131,30 +119,20 @@ class GraphDriver(Node):
                         camera_matrix(self.info), self.info.width, self.info.height)
         return Scene(camera, float(values['ball_radius']), str(values['robot_model']))
 
-    def _call(self, client, request, what: str):
-        future = client.call_async(request)
-        self.spin_until(future.done, what)
-        if future.exception() is not None:
-            raise DemosError(f'{what} failed: {future.exception()}')
-        return future.result()
-
     def get_parameters(self, names: Sequence[str]) -> dict[str, object]:
         """Return the sim's values of parameters ``names``."""
-        response = self._call(self._get, GetParameters.Request(names=list(names)),
-                              "the sim's parameters")
-        return {name: parameter_value_to_python(value)
-                for name, value in zip(names, response.values)}
+        return self.parameters_of(self._get, names)
 
     def place_ball(self, position: tuple[float, float, float]) -> None:
         """Set the sim's ``ball_position`` (as ``ros2 param set`` does)."""
         request = SetParameters.Request(
             parameters=[Parameter('ball_position', value=list(position)).to_parameter_msg()])
-        result = self._call(self._set, request, 'the sim to set ball_position').results[0]
+        result = self.call(self._set, request, 'the sim to set ball_position').results[0]
         if not result.successful:
             raise DemosError(f'the sim refused ball_position {position}: {result.reason}')
 
     def _trigger(self, client, what: str) -> None:
-        response = self._call(client, Trigger.Request(), what)
+        response = self.call(client, Trigger.Request(), what)
         if not response.success:
             raise DemosError(f'{what} failed: {response.message}')
 

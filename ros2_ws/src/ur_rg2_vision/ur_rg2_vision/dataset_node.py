@@ -7,34 +7,32 @@ options, the sampler and the loop are in :mod:`ur_rg2_vision.dataset_run`, the p
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 import signal
 import sys
-import time
 
 from geometry_msgs.msg import PoseStamped
 from rcl_interfaces.srv import GetParameters, SetParametersAtomically
 import rclpy
-from rclpy.executors import SingleThreadedExecutor
-from rclpy.node import Node
-from rclpy.parameter import Parameter, parameter_value_to_python
+from rclpy.parameter import Parameter
 from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
 from sensor_msgs.msg import CameraInfo, Image
 from tf2_msgs.msg import TFMessage
 from ur_rg2_common.contract import IMAGE_QOS, LATCHED_QOS
+from ur_rg2_common.self_spinning import SelfSpinningNode
 
 from ur_rg2_vision.dataset_run import InterruptError, SimError, SimRecord, parse_args, run
 
 
-class SimDriver(Node, SimRecord):
+class SimDriver(SelfSpinningNode, SimRecord):
     """Sets the sim's parameters and collects what it publishes; waits by spinning itself."""
 
+    error = SimError
+
     def __init__(self, sim_node: str, timeout: float) -> None:
-        Node.__init__(self, 'ur_rg2_dataset')
+        SelfSpinningNode.__init__(self, 'ur_rg2_dataset', timeout)
         SimRecord.__init__(self, timeout)
-        self._executor = SingleThreadedExecutor(context=self.context)
-        self._executor.add_node(self)
         self._sim = sim_node
         self._get = self.create_client(GetParameters, f'{sim_node}/get_parameters')
         # Atomically: the sim then takes a sample's changes in one go (one new camera for a
@@ -54,43 +52,28 @@ class SimDriver(Node, SimRecord):
         for t in msg.transforms:
             self.add_static(t)
 
-    def spin_until(self, predicate: Callable[[], object], what: str,
-                   timeout: float | None = None) -> object:
-        """Spin until ``predicate`` returns a truthy value; SimError after the timeout."""
-        deadline = time.monotonic() + (self.timeout if timeout is None else timeout)
-        while True:
-            if self.stop_signal is not None:
-                raise InterruptError(self.stop_signal)
-            value = predicate()
-            if value:
-                return value
-            if time.monotonic() > deadline:
-                raise SimError(f'timed out after {self.timeout:g} s waiting for {what}')
-            self._executor.spin_once(timeout_sec=0.02)
+    def check_stop(self) -> None:
+        """Raise InterruptError once a stop signal has come."""
+        if self.stop_signal is not None:
+            raise InterruptError(self.stop_signal)
 
-    def _call(self, client, request, what: str):
+    def call(self, client, request, what: str):
+        """Call one of the sim's services, once it answers; SimError if the call fails."""
         if not client.service_is_ready():
             self.spin_until(client.service_is_ready, f'the sim node {self._sim!r} to answer '
                             f'({client.srv_name}): is the sim running (sim, or ros2 run '
                             f'ur_rg2_sim sim), on this ROS_DOMAIN_ID and namespace?')
-        future = client.call_async(request)
-        self.spin_until(future.done, what)
-        if future.exception() is not None:
-            raise SimError(f'{what} failed: {future.exception()}')
-        return future.result()
+        return super().call(client, request, what)
 
     def get_parameters(self, names: Sequence[str]) -> dict[str, object]:
         """Return the sim's values of parameters ``names``."""
-        response = self._call(self._get, GetParameters.Request(names=list(names)),
-                              "the sim's parameters")
-        return {name: parameter_value_to_python(value)
-                for name, value in zip(names, response.values)}
+        return self.parameters_of(self._get, names)
 
     def set_parameters(self, values: dict[str, object]) -> None:
         """Set the sim's parameters; SimError with the sim's reason if one is refused."""
         request = SetParametersAtomically.Request(parameters=[
             Parameter(name, value=value).to_parameter_msg() for name, value in values.items()])
-        response = self._call(self._set, request, 'the sim to set ' + ', '.join(values))
+        response = self.call(self._set, request, 'the sim to set ' + ', '.join(values))
         if not response.result.successful:
             raise SimError(f'the sim refused {", ".join(values)}: {response.result.reason}')
 

@@ -86,6 +86,56 @@ def test_repainted_and_added_bodies_show_in_the_next_frame(scene_world):
         camera.close()
 
 
+@needs_egl
+def test_a_frame_keeps_nothing_of_the_frames_before(scene_world):
+    """The OpenGL camera redraws where shapes were and are: what left shows the floor again."""
+    config, joints = SCENES['default camera, arm bent over a box and a disc']
+    camera = Camera(scene_world, config, 'egl')
+    try:
+        scene_world.set_arm_positions(dict(zip(ARM_JOINTS, joints)))
+        box = scene_world.add_box((0.2, -0.7, 0.1), (0.06, 0.06, 0.06), (1, 0, 1, 1), mass=0)
+        before = camera.render()
+        scene_world.remove_bodies([box])
+        # The arm swung to the other side, where the last frame showed the floor.
+        scene_world.set_arm_positions(dict(zip(ARM_JOINTS, [1.4, -1.2, 1.0, -0.6, 0.6, 1.0])))
+        after = camera.render()
+        again = Camera(scene_world, config, 'egl')
+        try:
+            fresh = again.render()
+        finally:
+            again.close()
+    finally:
+        camera.close()
+    assert not np.array_equal(before.rgb, after.rgb)
+    assert np.array_equal(after.rgb, fresh.rgb)
+    assert np.array_equal(after.depth, fresh.depth)
+
+
+@needs_egl
+def test_a_world_of_more_shapes_than_one_draw_holds_is_drawn_whole():
+    """Shapes go to OpenGL 256 to a draw: the ones past the first draw show as TinyRenderer's."""
+    world = SimWorld(WorldConfig())
+    try:
+        grid = [(x, y) for x in np.linspace(0.15, 0.85, 15) for y in np.linspace(-0.75, 0.45, 19)
+                if np.hypot(x, y) > 0.25]
+        assert len(grid) > 256
+        for i, (x, y) in enumerate(grid):
+            world.add_box((x, y, 0.02), (0.015, 0.015, 0.02), (i % 7 / 6, 0.5, 1 - i % 5 / 4, 1),
+                          mass=0)
+        gl, tiny = Camera(world, CameraConfig(), 'egl'), Camera(world, CameraConfig(), 'tiny')
+        try:
+            ours, theirs = gl.render(), tiny.render()
+        finally:
+            gl.close()
+    finally:
+        world.close()
+    both = np.isfinite(ours.depth) & np.isfinite(theirs.depth)
+    within = np.abs(ours.depth[both] - theirs.depth[both]) < 0.001
+    assert within.mean() >= 0.99, f'depth within 1 mm on {within.mean():.4f} of pixels'
+    difference = np.abs(ours.rgb.astype(int) - theirs.rgb.astype(int)).max(axis=-1)
+    assert np.mean(difference <= 2) >= 0.98
+
+
 def test_an_unknown_renderer_is_refused_with_the_choices():
     with pytest.raises(RendererError, match="renderer must be auto, egl, tiny, got 'vulkan'"):
         choose_renderer('vulkan')

@@ -37,31 +37,30 @@ def read_snapshot(client: int) -> SceneSnapshot:
     """Return the visual shapes of every body of a pybullet client as they are now.
 
     Shapes and colours are read afresh each time (some 20 microseconds for the sim's world),
-    so a body added, removed or repainted shows in the next frame.
+    so a body added, removed or repainted shows in the next frame. The link frames of all
+    bodies become matrices in one go: numpy's cost is per call more than per row.
     """
-    keys: list[GeometryKey] = []
-    poses, colors, textured = [], [], False
+    bodies, frames, rows = [], [], []
     for index in range(pybullet.getNumBodies(physicsClientId=client)):
         body = pybullet.getBodyUniqueId(index, physicsClientId=client)
         shapes = _body_shapes(tuple(pybullet.getVisualShapeData(body, physicsClientId=client)))
         if not shapes.keys:
             continue
-        base = pybullet.getBasePositionAndOrientation(body, physicsClientId=client)
-        frames = [base]
+        bodies.append(shapes)
+        rows.append(shapes.links + (len(frames) + 1))  # link -1 (the base) is the body's row 0
+        frames.append(pybullet.getBasePositionAndOrientation(body, physicsClientId=client))
         links = pybullet.getNumJoints(body, physicsClientId=client)
         if links:
             states = pybullet.getLinkStates(body, list(range(links)), physicsClientId=client)
             frames += [(state[4], state[5]) for state in states]  # the URDF link frames
-        # Link -1 (the base) is row 0.
-        world = _matrices(frames)[shapes.links + 1]
-        keys += shapes.keys
-        poses.append(world @ shapes.local)
-        colors.append(shapes.colors)
-        textured |= shapes.textured
-    if not keys:
+    if not bodies:
         return SceneSnapshot((), np.empty((0, 4, 4), np.float32), np.empty((0, 4), np.float32))
-    return SceneSnapshot(tuple(keys), np.concatenate(poses).astype(np.float32),
-                         np.concatenate(colors), textured)
+    world = _matrices(frames)[np.concatenate(rows)]
+    local = np.concatenate([shapes.local for shapes in bodies])
+    return SceneSnapshot(tuple(key for shapes in bodies for key in shapes.keys),
+                         (world @ local).astype(np.float32),
+                         np.concatenate([shapes.colors for shapes in bodies]),
+                         any(shapes.textured for shapes in bodies))
 
 
 @dataclass(frozen=True)
@@ -93,8 +92,10 @@ def _body_shapes(data: tuple) -> _BodyShapes:
 
 def _matrices(poses) -> np.ndarray:
     """Return the 4x4 transforms of (position, xyzw quaternion) pairs, (n, 4, 4)."""
-    positions = np.array([pose[0] for pose in poses], dtype=float)
-    x, y, z, w = np.array([pose[1] for pose in poses], dtype=float).T
+    frames = np.array([(*position, *orientation) for position, orientation in poses],
+                      dtype=float)
+    positions = frames[:, :3]
+    x, y, z, w = frames[:, 3:].T
     matrices = np.zeros((len(poses), 4, 4))
     matrices[:, 0, 0] = 1 - 2 * (y * y + z * z)
     matrices[:, 0, 1] = 2 * (x * y - z * w)

@@ -76,8 +76,13 @@ _DOWN = gripper_down((0.0, 0.0, 0.0), 0.0)
 
 def target_bounds(arm: ArmKinematics) -> tuple[np.ndarray, np.ndarray]:
     """Return the box (base_link) that TCP targets are clipped to, low and high corners."""
+    low, high = _target_box(arm)
+    return np.array(low), np.array(high)
+
+
+def _target_box(arm: ArmKinematics) -> tuple[tuple[float, ...], tuple[float, ...]]:
     lowest = arm.floor_z + arm.finger_length + 2 * FLOOR_CLEARANCE
-    return np.array(TARGET_LOW[:2] + (lowest,)), np.array(TARGET_HIGH)
+    return TARGET_LOW[:2] + (lowest,), TARGET_HIGH
 
 
 def tcp_pose(position: np.ndarray) -> np.ndarray:
@@ -96,8 +101,10 @@ def move_target(arm: ArmKinematics, target: np.ndarray, joints: np.ndarray,
     Where no joints reach it (pedestal, reach), ``target`` and ``joints`` are kept: the arm
     holds its target.
     """
-    low, high = target_bounds(arm)
-    moved = np.clip(target + MAX_STEP * np.asarray(action[:3], dtype=float), low, high)
+    # In plain floats, the operations numpy would do elementwise (np.clip is min of max): on
+    # 3-vectors, once every step of the environments, numpy's overhead is most of the cost.
+    moved = np.array([min(max(t + MAX_STEP * float(a), lo), hi) for t, a, lo, hi in zip(
+        np.asarray(target, dtype=float).tolist(), action[:3], *_target_box(arm))])
     try:
         return moved, arm.solve(tcp_pose(moved), joints)
     except KinematicsError:
@@ -124,10 +131,13 @@ def start_joints(arm: ArmKinematics, position: np.ndarray) -> np.ndarray:
 
 def reach_observation(tcp: np.ndarray, tcp_velocity: np.ndarray,
                       goal: np.ndarray) -> dict[str, np.ndarray]:
-    """Return Reach's observation dict (base_link, m, m/s): the env's and the policy node's."""
+    """Return Reach's observation dict (base_link, m, m/s): the env's and the policy node's.
+
+    The vectors may be arrays or sequences of floats (the environment's, every step).
+    """
     return {
-        'observation': np.concatenate([tcp, tcp_velocity]).astype(np.float32),
-        'achieved_goal': np.asarray(tcp, dtype=np.float32),
+        'observation': np.array([*tcp, *tcp_velocity], dtype=np.float32),
+        'achieved_goal': np.array(tcp, dtype=np.float32),
         'desired_goal': np.asarray(goal, dtype=np.float32),
     }
 
@@ -135,11 +145,15 @@ def reach_observation(tcp: np.ndarray, tcp_velocity: np.ndarray,
 def pick_observation(tcp: np.ndarray, tcp_velocity: np.ndarray, opening: float,
                      ball: np.ndarray, ball_velocity: np.ndarray,
                      goal: np.ndarray) -> dict[str, np.ndarray]:
-    """Return Pick's observation dict (base_link, m, m/s): the env's and the policy node's."""
+    """Return Pick's observation dict (base_link, m, m/s): the env's and the policy node's.
+
+    The vectors may be arrays or sequences of floats (the environment's, every step).
+    """
+    offset = [b - t for b, t in zip(ball, tcp)]  # the ball relative to the TCP
     return {
-        'observation': np.concatenate([tcp, tcp_velocity, [opening], ball, ball - tcp,
-                                       ball_velocity]).astype(np.float32),
-        'achieved_goal': np.asarray(ball, dtype=np.float32),
+        'observation': np.array([*tcp, *tcp_velocity, opening, *ball, *offset, *ball_velocity],
+                                dtype=np.float32),
+        'achieved_goal': np.array(ball, dtype=np.float32),
         'desired_goal': np.asarray(goal, dtype=np.float32),
     }
 
@@ -175,6 +189,7 @@ class UrRg2Env(gym.Env):
                                           physics_rate=CONTROL_RATE * self.substeps))
         height = self.world.pedestal_height
         self._base = np.array([0.0, 0.0, height])  # base_link in the world frame
+        self._base_xyz = self._base.tolist()
         self.arm = arm_on_pedestal(self.world.urdf.read_text(), height)
         observation, goal = self._sizes()
         self.observation_space = spaces.Dict({
@@ -184,10 +199,12 @@ class UrRg2Env(gym.Env):
         })
         self.action_space = spaces.Box(-1.0, 1.0, (4 if self.gripper_action else 3,),
                                        dtype=np.float32)
+        # The step's state. Measured vectors are plain floats: every step computes them, and
+        # numpy's overhead on 3-vectors would be most of their cost.
         self._joints = np.zeros(len(ARM_JOINTS))
-        self._tcp = np.zeros(3)
+        self._tcp = [0.0, 0.0, 0.0]
         self._target = np.zeros(3)  # the commanded TCP position
-        self._tcp_velocity = np.zeros(3)
+        self._tcp_velocity = [0.0, 0.0, 0.0]
         self._goal = np.zeros(3)
 
     # -- what the tasks define ----------------------------------------------------------------
@@ -234,8 +251,8 @@ class UrRg2Env(gym.Env):
         self.world.set_ball_position((ball + self._base).tolist())
         self._joints = joints
         self._target = start
-        self._tcp = np.array(self.world.link_pose()[0]) - self._base
-        self._tcp_velocity = np.zeros(3)
+        self._tcp = self._tcp_position()
+        self._tcp_velocity = [0.0, 0.0, 0.0]
         self._start_episode(ball)
         return self._observe(), {'is_success': self._is_success()}
 
@@ -245,12 +262,13 @@ class UrRg2Env(gym.Env):
 
     def step(self, action: np.ndarray) -> tuple[dict, float, bool, bool, dict]:
         """Move the TCP (and the gripper), run the physics for 1 / CONTROL_RATE s."""
-        action = np.clip(np.asarray(action, dtype=float), -1.0, 1.0)
+        # Clipped as np.clip does (min of max), in plain floats.
+        action = [min(max(a, -1.0), 1.0) for a in np.asarray(action, dtype=float).tolist()]
         previous = self._joints
         self._command(action)
         self._move_arm(previous, self._joints)
-        tcp = np.array(self.world.link_pose()[0]) - self._base
-        self._tcp_velocity = (tcp - self._tcp) * CONTROL_RATE
+        tcp = self._tcp_position()
+        self._tcp_velocity = [(a - b) * CONTROL_RATE for a, b in zip(tcp, self._tcp)]
         self._tcp = tcp
         observation = self._observe()
         info = {'is_success': self._is_success()}
@@ -258,7 +276,11 @@ class UrRg2Env(gym.Env):
                                            observation['desired_goal'], info))
         return observation, reward, False, False, info
 
-    def _command(self, action: np.ndarray) -> None:
+    def _tcp_position(self) -> list[float]:
+        """Return the TCP's position in base_link (m) now, plain floats."""
+        return [p - b for p, b in zip(self.world.link_pose()[0], self._base_xyz)]
+
+    def _command(self, action: list[float]) -> None:
         # From the last commanded target, not the measured TCP: a zero action then holds the
         # arm still instead of letting it creep after its own tracking error.
         self._target, self._joints = move_target(self.arm, self._target, self._joints, action)
@@ -270,7 +292,8 @@ class UrRg2Env(gym.Env):
         is fed forward, as the trajectory controller feeds its path's speed.
         """
         # Inside the joint limits already (the inverse kinematics keeps to them): one call.
-        self.world.drive_arm(joints.tolist(), ((joints - previous) * CONTROL_RATE).tolist())
+        q = joints.tolist()
+        self.world.drive_arm(q, [(a - b) * CONTROL_RATE for a, b in zip(q, previous.tolist())])
         for _ in range(self.substeps):
             self.world.step()
 
@@ -305,12 +328,12 @@ class ReachEnv(UrRg2Env):
         return reach_observation(self._tcp, self._tcp_velocity, self._goal)
 
     def _is_success(self) -> bool:
-        return bool(np.linalg.norm(self._tcp - self._goal) < REACH_TOLERANCE)
+        return _length(np.subtract(self._tcp, self._goal)) < REACH_TOLERANCE
 
     def compute_reward(self, achieved_goal: np.ndarray, desired_goal: np.ndarray,
                        info: Any) -> np.ndarray:
         """Return minus the distance (m) from the TCP to the ball's top."""
-        return -np.linalg.norm(np.asarray(achieved_goal) - np.asarray(desired_goal), axis=-1)
+        return -_distances(achieved_goal, desired_goal)
 
 
 class PickEnv(UrRg2Env):
@@ -338,7 +361,11 @@ class PickEnv(UrRg2Env):
         super().__init__(robot_model)
         self._settings['grasped_share'] = self.grasped_share = grasped_share
         self._settings['over_ball_share'] = self.over_ball_share = over_ball_share
-        self._cubics = {n: np.arange(1, n + 1) / n for n in (self.substeps, self.free_substeps)}
+        # The cubic's position and speed factors at the ends of a step's substeps (columns).
+        fractions = {n: np.arange(1, n + 1) / n for n in (self.substeps, self.free_substeps)}
+        self._cubics = {n: ((s * s * (3.0 - 2.0 * s))[:, None],
+                            (6.0 * s * (1.0 - s) * CONTROL_RATE)[:, None])
+                        for n, s in fractions.items()}
         self._rate_substeps = self.substeps  # the world's physics rate, in substeps per step
         limits = [self.world.limits[name] for name in ARM_JOINTS]
         self._lower = np.array([limit.lower for limit in limits])
@@ -346,7 +373,7 @@ class PickEnv(UrRg2Env):
 
     def _start_episode(self, ball: np.ndarray) -> None:
         self._closed = False
-        self._ball = ball
+        self._ball = ball.tolist()
         self._goal = pick_goal(ball)
 
     def reset(self, *, seed: int | None = None,
@@ -374,12 +401,12 @@ class PickEnv(UrRg2Env):
     def _start_over_ball(self) -> None:
         """Put the open TCP 0 to OVER_BALL_HEIGHT above the grasp height over the ball."""
         rng = self.np_random
-        tcp = self._ball + (0.0, 0.0, GRASP_HEIGHT + rng.uniform(0.0, OVER_BALL_HEIGHT))
+        tcp = np.add(self._ball, (0.0, 0.0, GRASP_HEIGHT + rng.uniform(0.0, OVER_BALL_HEIGHT)))
         tcp[:2] += rng.uniform(-OVER_BALL_JITTER, OVER_BALL_JITTER, 2)
         joints = start_joints(self.arm, tcp)
         self.world.set_arm_positions(dict(zip(ARM_JOINTS, joints.tolist())))
         self._joints, self._target = joints, tcp
-        self._tcp = np.array(self.world.link_pose()[0]) - self._base
+        self._tcp = self._tcp_position()
 
     def _start_grasped(self) -> None:
         """Put the ball (and the TCP over its centre) up to LIFT_GOAL up, the RG2 closed on it."""
@@ -399,11 +426,11 @@ class PickEnv(UrRg2Env):
             if world.gripper_stopped():
                 break
         self._joints, self._target = joints, tcp
-        self._tcp = np.array(world.link_pose()[0]) - self._base
-        self._ball = np.array(world.body_position(world.ball)) - self._base
+        self._tcp = self._tcp_position()
+        self._ball = self._ball_position()
 
-    def _command(self, action: np.ndarray) -> None:
-        closed = bool(action[3] < 0.0)
+    def _command(self, action: list[float]) -> None:
+        closed = action[3] < 0.0
         self._gripper_moved = closed != self._closed
         if self._gripper_moved:
             if closed:
@@ -421,13 +448,13 @@ class PickEnv(UrRg2Env):
         TCP where the policy sent it: fed the speed forward and left to run on (Reach's way),
         the arm overshot a fast descent by up to 2 cm, closing the fingers over the ball's top.
         """
-        near = self._closed or np.linalg.norm(self._ball - self._tcp) < NEAR_BALL
+        near = self._closed or _length(np.subtract(self._ball, self._tcp)) < NEAR_BALL
         self._use_substeps(self.substeps if near else self.free_substeps)
         # The whole cubic at once (one NumPy computation, clamped to the joint limits once).
-        s = self._cubics[self._rate_substeps]
-        positions = np.clip(previous + np.outer(s * s * (3.0 - 2.0 * s), joints - previous),
-                            self._lower, self._upper).tolist()
-        velocities = np.outer(6.0 * s * (1.0 - s) * CONTROL_RATE, joints - previous).tolist()
+        ramp, speed = self._cubics[self._rate_substeps]
+        move = joints - previous
+        positions = np.clip(previous + ramp * move, self._lower, self._upper).tolist()
+        velocities = (speed * move).tolist()
         world = self.world
         for position, velocity in zip(positions, velocities):
             world.drive_arm(position, velocity)
@@ -450,21 +477,35 @@ class PickEnv(UrRg2Env):
 
     def _observe(self) -> dict[str, np.ndarray]:
         # Once per step (and at the reset, where the ball lies still where it was put).
-        ball = np.array(self.world.body_position(self.world.ball)) - self._base
-        self._ball_velocity = (ball - self._ball) * CONTROL_RATE
+        ball = self._ball_position()
+        self._ball_velocity = [(a - b) * CONTROL_RATE for a, b in zip(ball, self._ball)]
         self._ball = ball
         return pick_observation(self._tcp, self._tcp_velocity, self.world.gripper_opening(),
                                 self._ball, self._ball_velocity, self._goal)
 
+    def _ball_position(self) -> list[float]:
+        """Return the ball's centre in base_link (m) now, plain floats."""
+        return [p - b for p, b in zip(self.world.body_position(self.world.ball), self._base_xyz)]
+
     def _is_success(self) -> bool:
-        bottom = self._ball[2] - BALL_RADIUS + self._base[2]  # above the floor (world z = 0)
+        bottom = self._ball[2] - BALL_RADIUS + self._base_xyz[2]  # above the floor (z = 0)
         return bool(bottom >= LIFT_SUCCESS and self.world.gripper_holds_object())
 
     def compute_reward(self, achieved_goal: np.ndarray, desired_goal: np.ndarray,
                        info: Any) -> np.ndarray:
         """Return 0 where the ball is within PICK_GOAL_TOLERANCE of the goal, else -1."""
-        distance = np.linalg.norm(np.asarray(achieved_goal) - np.asarray(desired_goal), axis=-1)
-        return -(distance > PICK_GOAL_TOLERANCE).astype(np.float32)
+        return -(_distances(achieved_goal, desired_goal) > PICK_GOAL_TOLERANCE).astype(np.float32)
+
+
+def _length(vector: np.ndarray) -> float:
+    """Return np.linalg.norm(vector) of a 1-D float array, without its checks (every step)."""
+    return math.sqrt(vector.dot(vector))  # the norm's own computation, sqrt of the dot product
+
+
+def _distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Return np.linalg.norm(a - b, axis=-1) computed as it does, without its checks."""
+    difference = np.subtract(a, b)
+    return np.sqrt(np.add.reduce(difference * difference, axis=-1))
 
 
 class BallNoise(gym.Wrapper):

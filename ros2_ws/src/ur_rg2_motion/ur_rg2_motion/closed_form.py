@@ -13,7 +13,9 @@ frame of the chain, at once); the inverse is scalar, which for one pose is faste
 :class:`KinematicsError` is the error of every check of ur_rg2_motion.kinematics.
 """
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 import math
 
 import numpy as np
@@ -100,50 +102,69 @@ def inverse(dh: DhParameters, pose: np.ndarray, wrist_3: float = 0.0) -> list[tu
     only their sum is defined: wrist 3 is then set to ``wrist_3`` (the current one keeps the
     wrist still). Scalar arithmetic: for one pose it is several times faster than numpy.
     """
-    (nx, ox, zx, px), (ny, oy, zy, py), (nz, oz, zz, pz) = pose.tolist()[:3]
-    d1, a2, a3, d4, d5, d6 = dh.d1, dh.a2, dh.a3, dh.d4, dh.d5, dh.d6
-    remainder, tau = math.remainder, 2 * math.pi
-    solutions = []
+    return [q for _, solutions in inverse_by_shoulder(dh, pose, wrist_3) for q in solutions()]
+
+
+def inverse_by_shoulder(dh: DhParameters, pose: np.ndarray,
+                        wrist_3: float = 0.0) -> list[tuple[float, Callable[[], list[tuple]]]]:
+    """Return :func:`inverse`'s solutions by shoulder pan: (pan in [-pi, pi], its solutions).
+
+    The second of each pair computes that pan's (up to 4) solutions when called: a search for
+    the solution nearest some joints can skip a pan already too far from them.
+    """
+    rows = pose.tolist()[:3]
+    (_, _, zx, px), (_, _, zy, py) = rows[:2]
+    d4, d6 = dh.d4, dh.d6
     # Shoulder pan: the wrist centre (flange minus d6 along z) lies d4 off the arm's plane.
     wx, wy = px - d6 * zx, py - d6 * zy
     radius = math.hypot(wx, wy)
     if radius == 0.0 or abs(d4) > radius * (1 + _ACOS_SLACK):
-        return solutions
+        return []
     spread = math.acos(min(d4 / radius, 1.0))
     heading = math.atan2(wy, wx) + math.pi / 2
-    for q1 in (heading + spread, heading - spread):
-        c1, s1 = math.cos(q1), math.sin(q1)
-        # Wrist 2: the flange's offset along the shoulder axis is d4 + d6 cos(q5).
-        height = (px * s1 - py * c1 - d4) / d6
-        if abs(height) > 1 + _ACOS_SLACK:
+    return [(math.remainder(q1, 2 * math.pi), partial(_pan_solutions, dh, rows, q1, wrist_3))
+            for q1 in (heading + spread, heading - spread)]
+
+
+def _pan_solutions(dh: DhParameters, rows: list[list[float]], q1: float,
+                   wrist_3: float) -> list[tuple]:
+    """Return the solutions (up to 4) with shoulder pan ``q1``: see :func:`inverse`."""
+    (nx, ox, zx, px), (ny, oy, zy, py), (nz, oz, zz, pz) = rows
+    d1, a2, a3, d4, d5, d6 = dh.d1, dh.a2, dh.a3, dh.d4, dh.d5, dh.d6
+    remainder, tau = math.remainder, 2 * math.pi
+    solutions = []
+    c1, s1 = math.cos(q1), math.sin(q1)
+    # Wrist 2: the flange's offset along the shoulder axis is d4 + d6 cos(q5).
+    height = (px * s1 - py * c1 - d4) / d6
+    if abs(height) > 1 + _ACOS_SLACK:
+        return solutions
+    tilt = math.acos(max(-1.0, min(height, 1.0)))
+    nc, oc, zc = nx * c1 + ny * s1, ox * c1 + oy * s1, zx * c1 + zy * s1
+    u, v = nx * s1 - ny * c1, ox * s1 - oy * c1
+    for q5 in (tilt, -tilt):
+        c5, s5 = math.cos(q5), math.sin(q5)
+        # |(u, v)| is |sin q5| from the orientation, exact where acos near 1 is not.
+        if math.hypot(u, v) < _WRIST_SINGULAR:
+            q6 = wrist_3
+        else:
+            # Wrist 3 from the flange's x and y axes seen along the shoulder axis.
+            sign = 1.0 if s5 > 0 else -1.0
+            q6 = math.atan2(-v * sign, u * sign)
+        c6, s6 = math.cos(q6), math.sin(q6)
+        # The planar chain shoulder lift, elbow, wrist 1 from frame 1 to frame 4.
+        x04x = -s5 * zc - c5 * (s6 * oc - c6 * nc)
+        x04y = c5 * (nz * c6 - oz * s6) - zz * s5
+        p13x = d5 * (s6 * nc + c6 * oc) - d6 * zc + px * c1 + py * s1
+        p13y = pz - d1 - d6 * zz + d5 * (oz * c6 + nz * s6)
+        c3 = (p13x * p13x + p13y * p13y - a2 * a2 - a3 * a3) / (2 * a2 * a3)
+        if abs(c3) > 1 + _ACOS_SLACK:
             continue
-        tilt = math.acos(max(-1.0, min(height, 1.0)))
-        nc, oc, zc = nx * c1 + ny * s1, ox * c1 + oy * s1, zx * c1 + zy * s1
-        u, v = nx * s1 - ny * c1, ox * s1 - oy * c1
-        for q5 in (tilt, -tilt):
-            c5, s5 = math.cos(q5), math.sin(q5)
-            # |(u, v)| is |sin q5| from the orientation, exact where acos near 1 is not.
-            if math.hypot(u, v) < _WRIST_SINGULAR:
-                q6 = wrist_3
-            else:
-                # Wrist 3 from the flange's x and y axes seen along the shoulder axis.
-                sign = 1.0 if s5 > 0 else -1.0
-                q6 = math.atan2(-v * sign, u * sign)
-            c6, s6 = math.cos(q6), math.sin(q6)
-            # The planar chain shoulder lift, elbow, wrist 1 from frame 1 to frame 4.
-            x04x = -s5 * zc - c5 * (s6 * oc - c6 * nc)
-            x04y = c5 * (nz * c6 - oz * s6) - zz * s5
-            p13x = d5 * (s6 * nc + c6 * oc) - d6 * zc + px * c1 + py * s1
-            p13y = pz - d1 - d6 * zz + d5 * (oz * c6 + nz * s6)
-            c3 = (p13x * p13x + p13y * p13y - a2 * a2 - a3 * a3) / (2 * a2 * a3)
-            if abs(c3) > 1 + _ACOS_SLACK:
-                continue
-            bend = math.acos(max(-1.0, min(c3, 1.0)))
-            for q3 in (bend, -bend):
-                ea, eb = a2 + a3 * math.cos(q3), a3 * math.sin(q3)
-                q2 = math.atan2(ea * p13y - eb * p13x, ea * p13x + eb * p13y)
-                c23, s23 = math.cos(q2 + q3), math.sin(q2 + q3)
-                q4 = math.atan2(c23 * x04y - s23 * x04x, x04x * c23 + x04y * s23)
-                solutions.append((remainder(q1, tau), remainder(q2, tau), remainder(q3, tau),
-                                  remainder(q4, tau), remainder(q5, tau), remainder(q6, tau)))
+        bend = math.acos(max(-1.0, min(c3, 1.0)))
+        for q3 in (bend, -bend):
+            ea, eb = a2 + a3 * math.cos(q3), a3 * math.sin(q3)
+            q2 = math.atan2(ea * p13y - eb * p13x, ea * p13x + eb * p13y)
+            c23, s23 = math.cos(q2 + q3), math.sin(q2 + q3)
+            q4 = math.atan2(c23 * x04y - s23 * x04x, x04x * c23 + x04y * s23)
+            solutions.append((remainder(q1, tau), remainder(q2, tau), remainder(q3, tau),
+                              remainder(q4, tau), remainder(q5, tau), remainder(q6, tau)))
     return solutions

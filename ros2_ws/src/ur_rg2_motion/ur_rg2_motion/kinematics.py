@@ -16,7 +16,7 @@ from ``base_link`` to ``tool0`` (joint origins and axes) at a set of joint vecto
 :data:`CHAIN_TOLERANCE`. Without an ``rg2_tcp`` frame the TCP is an offset from ``tool0``.
 """
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 import math
 import xml.etree.ElementTree as ET
@@ -24,7 +24,14 @@ import xml.etree.ElementTree as ET
 import numpy as np
 from ur_rg2_common.contract import ARM_JOINTS
 
-from ur_rg2_motion.closed_form import UR_DH, DhParameters, KinematicsError, forward, inverse
+from ur_rg2_motion.closed_form import (
+    UR_DH,
+    DhParameters,
+    KinematicsError,
+    forward,
+    inverse,
+    inverse_by_shoulder,
+)
 from ur_rg2_motion.urdf import (
     FLANGE,
     _arm_path,
@@ -180,15 +187,26 @@ class ArmKinematics:
         """
         target = np.asarray(target, dtype=float)
         check_pose(target)
-        current = [float(c) for c in current]
-        branches = self.solutions(target, current[5])
+        current = np.asarray(current, dtype=float).tolist()
+        pans = inverse_by_shoulder(self.dh, self._base_inverse @ target @ self._tcp_inverse,
+                                   current[5])
+        # Points that the target alone fixes: the TCP, the finger tips, the wrist centre. In
+        # plain floats, the same operations numpy would do elementwise: the learning
+        # environments solve once every step, and on 3-vectors numpy's overhead dominates.
+        tcp, finger = target.tolist()[:3], self.finger_length
+        flange, d6 = (target @ self._tcp_inverse).tolist()[:3], self.dh.d6
+        fixed_failure = self._obstacle_failure([
+            [row[3] for row in tcp], [row[3] + finger * row[2] for row in tcp],
+            [row[3] - d6 * row[2] for row in flange]])
+        if not fixed_failure:
+            # Usually the nearest branch within the limits passes the checks: found without
+            # sorting them all (nor solving for a shoulder pan already further).
+            best = _nearest(pans, current, self._limits)
+            if best is not None and not self._obstacle_failure(self._arm_points(best)):
+                return self._unless_singular(best, target)
+        branches = [q for _, solutions in pans for q in solutions()]  # as self.solutions'
         if not branches:
             raise KinematicsError('unreachable', f"{_where(target)} is out of the arm's reach")
-        # Points that the target alone fixes: the TCP, the finger tips, the wrist centre.
-        flange = target @ self._tcp_inverse
-        fixed = [target[:3, 3], target[:3, 3] + self.finger_length * target[:3, 2],
-                 flange[:3, 3] - self.dh.d6 * flange[:3, 2]]
-        fixed_failure = self._obstacle_failure([p.tolist() for p in fixed])
         candidates, failures = [], set()
         for branch in branches:
             q = _within_limits(branch, current, self._limits)
@@ -212,11 +230,16 @@ class ArmKinematics:
                 'floor': f'{_where(target)} would put the arm or the gripper below the floor',
                 'pedestal': f'{_where(target)} would put the arm into the pedestal',
             }[reason])
-        if abs(math.sin(best[2])) < _BOUNDARY_SINGULAR:
+        return self._unless_singular(best, target)
+
+    @staticmethod
+    def _unless_singular(q: list[float], target: np.ndarray) -> np.ndarray:
+        """Return ``q`` as an array, or raise KinematicsError if its elbow is stretched."""
+        if abs(math.sin(q[2])) < _BOUNDARY_SINGULAR:
             raise KinematicsError(
                 'singular', f'{_where(target)} needs the elbow fully stretched (a singularity '
                 'on the edge of the reach)')
-        return np.array(best)
+        return np.array(q)
 
     def _arm_points(self, q: Sequence[float]) -> list[tuple[float, float, float]]:
         """Return the elbow and the wrist 1 and 2 frame origins in ``base_link``."""
@@ -227,8 +250,10 @@ class ArmKinematics:
         reach3 = reach2 + a3 * math.cos(q[1] + q[2])
         z2 = d1 + a2 * math.sin(q[1])
         z3 = z2 + a3 * math.sin(q[1] + q[2])
-        rotation, offset = self._base_rotation, self._base_offset
-        return [tuple(r[0] * x + r[1] * y + r[2] * z + o for r, o in zip(rotation, offset))
+        # Into base_link, written out: every solve checks the points of at least one branch.
+        (r0, r1, r2), (o0, o1, o2) = self._base_rotation, self._base_offset
+        return [(r0[0] * x + r0[1] * y + r0[2] * z + o0, r1[0] * x + r1[1] * y + r1[2] * z + o1,
+                 r2[0] * x + r2[1] * y + r2[2] * z + o2)
                 for x, y, z in ((reach2 * c1, reach2 * s1, z2), (reach3 * c1, reach3 * s1, z3),
                                 (reach3 * c1 + d4 * s1, reach3 * s1 - d4 * c1, z3))]
 
@@ -263,6 +288,52 @@ def _within_limits(q: Sequence[float], current: Sequence[float],
             return None
         result.append(angle)
     return result
+
+
+def _nearest(pans: list[tuple[float, Callable[[], list[tuple]]]], current: Sequence[float],
+             limits: Sequence[tuple[float, float]]) -> list[float] | None:
+    """Return the branch that :func:`_within_limits` puts nearest ``current``, or None.
+
+    ``pans`` are :func:`inverse_by_shoulder`'s. Nearest as :meth:`ArmKinematics.solve` orders
+    them: by the sum of squared joint motions (summed in joint order), then by the joints. A
+    branch is dropped as soon as its partial sum exceeds the best full one (in floating point
+    too: rounding is monotonic, so adding non-negative terms never gives a smaller sum), and a
+    shoulder pan whose own term already does is not solved for.
+    """
+    remainder, tau = math.remainder, 2 * math.pi
+    pan_now, (pan_low, pan_high) = current[0], limits[0]
+    order = []
+    for pan, solutions in pans:  # joint 0 taken as _within_limits takes it
+        pan = pan_now + remainder(pan - pan_now, tau)
+        if pan > pan_high:
+            pan -= tau
+        elif pan < pan_low:
+            pan += tau
+        if pan_low <= pan <= pan_high:
+            order.append(((pan - pan_now) ** 2, solutions))
+    order.sort(key=lambda item: item[0])  # the nearest pan first
+    best, best_cost = None, math.inf
+    for pan_cost, solutions in order:
+        if pan_cost > best_cost:
+            break
+        for branch in solutions():
+            q, cost = [], 0
+            for angle, now, (lo, hi) in zip(branch, current, limits):
+                angle = now + remainder(angle - now, tau)
+                if angle > hi:
+                    angle -= tau
+                elif angle < lo:
+                    angle += tau
+                if not lo <= angle <= hi:
+                    break
+                cost += (angle - now) ** 2
+                if cost > best_cost:
+                    break
+                q.append(angle)
+            else:
+                if cost < best_cost or q < best:
+                    best, best_cost = q, cost
+    return best
 
 
 def check_pose(pose: np.ndarray) -> None:

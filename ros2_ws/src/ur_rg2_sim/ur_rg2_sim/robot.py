@@ -182,8 +182,8 @@ class GripperMixin:
 
     def gripper_opening(self) -> float:
         """Return the distance between the finger pads, metres."""
-        return sum(self._p.getJointState(self.robot, self._joint_index[name])[0]
-                   for name in GRIPPER_JOINTS)
+        # One pybullet call for both fingers (the learning environments ask every step).
+        return sum(self._finger_positions())
 
     def gripper_effort(self) -> float:
         """Return the force the finger motors push with, N (the grip force on an object)."""

@@ -234,6 +234,7 @@ class GlRenderer:
         self._rgba = np.empty((height, width, 4), dtype=np.uint8)
         self._view_projection = projection @ view
         self._near = near
+        self._eye_height = float(np.linalg.inv(view)[2, 3])  # the camera's side of the floor
         # Where the frame buffer may differ from the floor's: (left, top, right, bottom)
         # window pixels, right and bottom excluded; all of it before the first frame.
         self._stale: Optional[tuple[int, int, int, int]] = (0, 0, width, height)
@@ -309,10 +310,17 @@ class GlRenderer:
                      corners: np.ndarray) -> Optional[tuple[int, int, int, int]]:
         """Return the window pixels the shapes may cover, (left, top, right, bottom), or None.
 
-        It bounds the shapes' boxes, a pixel wider on each side; all of the window when a box
-        reaches nearer than the near clip, where its projection bounds nothing.
+        It bounds the shapes' boxes, a pixel wider on each side, but for boxes wholly on the far
+        side of the floor, which hides them (the floor's speck, bodies parked out of sight); all
+        of the window when a box reaches nearer than the near clip, where its projection bounds
+        nothing.
         """
-        clip = (poses.astype(float) @ corners).transpose(0, 2, 1) @ self._view_projection.T
+        world = poses.astype(float) @ corners
+        heights = world[:, 2, :] * np.sign(self._eye_height)
+        world = world[heights.max(axis=1) >= 0] if self._eye_height else world
+        if not len(world):
+            return None
+        clip = world.transpose(0, 2, 1) @ self._view_projection.T
         w = clip[..., 3]
         if w.min() <= self._near:
             return 0, 0, self.width, self.height

@@ -28,8 +28,8 @@ from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 from ur_rg2_common.contract import ARM_JOINTS, IMAGE_QOS, LATCHED_QOS
 from ur_rg2_common.tf_buffer import TransformBuffer, quaternion_from_matrix
-from ur_rg2_learning.envs import REACH_TOLERANCE
 from ur_rg2_learning.policy_node import PolicyNode
+from ur_rg2_learning.tasks import REACH_TOLERANCE
 from ur_rg2_motion.motion_node import MotionNode
 from ur_rg2_motion.planning import gripper_down
 from ur_rg2_teleop.display import Console

@@ -13,19 +13,17 @@ import pytest
 from ur_rg2_common.contract import ARM_JOINTS
 from ur_rg2_learning import PICK_ID, REACH_ID
 import ur_rg2_learning.envs
-from ur_rg2_learning.envs import (
-    BALL_RADIUS,
+from ur_rg2_learning.envs import VISION_BALL_NOISE, BallNoise
+from ur_rg2_learning.robot import (
     CONTROL_RATE,
     MAX_STEP,
-    REACH_TOLERANCE,
     START_TCP,
-    VISION_BALL_NOISE,
-    BallNoise,
     move_target,
     start_joints,
     step_duration,
 )
 from ur_rg2_learning.scripted import pick_action
+from ur_rg2_learning.tasks import BALL_RADIUS, REACH_TOLERANCE
 from ur_rg2_motion.kinematics import urdf_velocity_limits
 from ur_rg2_sim.trajectory import Point, TrajectoryError, plan, validate
 

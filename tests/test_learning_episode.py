@@ -5,8 +5,9 @@ import numpy as np
 import pytest
 from ur_rg2_common.contract import RG2_MAX_OPENING
 from ur_rg2_learning import EPISODE_STEPS, PICK_ID
-from ur_rg2_learning.envs import BALL_RADIUS, START_TCP, pick_goal, start_joints
 from ur_rg2_learning.episode import LOST_STEPS, Episode, Outcome, start_episode
+from ur_rg2_learning.robot import START_TCP, start_joints
+from ur_rg2_learning.tasks import BALL_RADIUS, pick_goal
 
 BALL = np.array([0.45, -0.2, -0.2 + BALL_RADIUS])  # base_link, on the floor
 

@@ -21,8 +21,8 @@ from tf2_msgs.msg import TFMessage
 from ur_rg2_common.contract import LATCHED_QOS
 from ur_rg2_common.tf_buffer import TransformBuffer
 from ur_rg2_learning.actor import PolicyError
-from ur_rg2_learning.envs import REACH_TOLERANCE
 from ur_rg2_learning.policy_node import PolicyNode
+from ur_rg2_learning.tasks import REACH_TOLERANCE
 
 TIMEOUT = 60.0  # s of wall time on a loaded 2-core machine
 

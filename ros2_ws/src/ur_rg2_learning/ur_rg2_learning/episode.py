@@ -4,7 +4,7 @@
 environment's start pose. An :class:`Episode` builds each step's observation as the
 environment builds it (from the measured joints, the RG2's opening and the ball the camera
 sees), decides when the episode ends, and turns the actor's action into the step's joint goal
-(``envs.move_target``), its duration (``envs.step_duration``: the controller refuses a goal
+(``robot.move_target``), its duration (``robot.step_duration``: the controller refuses a goal
 too fast rather than slow it down, where the environment's motors only lag) and, for Pick, a
 change of the gripper. The node does the messaging around it.
 """
@@ -20,22 +20,24 @@ from ur_rg2_motion.kinematics import ArmKinematics, KinematicsError
 from ur_rg2_motion.planning import Trajectory, plan_joint_move, plan_pick
 
 from ur_rg2_learning import EPISODE_STEPS, PICK_ID, REACH_ID
-from ur_rg2_learning.envs import (
+from ur_rg2_learning.robot import (
     CONTROL_RATE,
-    LIFT_GOAL,
-    LIFT_SUCCESS,
-    PICK_GOAL_TOLERANCE,
-    REACH_TOLERANCE,
     START_TCP,
     move_target,
-    pick_goal,
-    pick_observation,
-    reach_observation,
     start_joints,
     step_duration,
     tcp_pose,
 )
 from ur_rg2_learning.scripted import APPROACH_HEIGHT
+from ur_rg2_learning.tasks import (
+    LIFT_GOAL,
+    LIFT_SUCCESS,
+    PICK_GOAL_TOLERANCE,
+    REACH_TOLERANCE,
+    pick_goal,
+    pick_observation,
+    reach_observation,
+)
 
 LOST_STEPS = 30  # Pick steps (3 s of simulation time) a ball not held may go unseen
 # A closed RG2 holds the ball when its fingers stopped this near the ball's diameter (the

@@ -11,7 +11,8 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from ur_rg2_learning.envs import GRASP_HEIGHT, MAX_STEP
+from ur_rg2_learning.robot import MAX_STEP
+from ur_rg2_learning.tasks import GRASP_HEIGHT
 
 # The grasp (GRASP_HEIGHT over the ball's centre) is approached from APPROACH_HEIGHT once
 # over the ball.

@@ -4,7 +4,7 @@ from dataclasses import dataclass
 
 from ur_rg2_common.parameters import ParameterSpec
 
-from ur_rg2_learning.envs import BALL_RADIUS
+from ur_rg2_learning.tasks import BALL_RADIUS
 
 PARAMETERS = (
     ParameterSpec('policy_dir', 'reach', 'The policy to run: a directory written by '

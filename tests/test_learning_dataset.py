@@ -23,10 +23,12 @@ from ur_rg2_learning.actor import Actor
 from ur_rg2_learning.dataset_demos import (
     CAMERA_LOOK_AT,
     CAMERA_POSITION,
+    HOLD_STEPS,
     DatasetError,
     dataset_demonstrations,
     gripper_commands,
     read_dataset,
+    split_step,
 )
 from ur_rg2_learning.envs import MAX_STEP
 from ur_rg2_learning.scripted import pick_action
@@ -122,14 +124,48 @@ def test_frames_become_the_steps_the_environment_takes(tmp_path, scripted_episod
     np.testing.assert_allclose(observation[7:10], truth['observation'][7:10], atol=1e-4)
     np.testing.assert_allclose(observation[:3], truth['observation'][:3], atol=2e-3)
     np.testing.assert_allclose(steps['desired_goal'][0], truth['desired_goal'], atol=1e-4)
-    # Moves as the TCP went: the next observation's TCP is MAX_STEP * action further.
+    # Moves as the TCP went: the next observation's TCP is MAX_STEP * action further, within
+    # the action's bounds (faster moves are split), and no pause (no move, the RG2 unchanged).
     moved = (steps['next_observation'][:, :3] - steps['observation'][:, :3]) / MAX_STEP
-    unclipped = np.all(np.abs(moved) < 0.99, axis=1)
-    np.testing.assert_allclose(steps['action'][unclipped, :3], moved[unclipped], atol=1e-4)
+    np.testing.assert_allclose(steps['action'][:, :3], moved, atol=1e-4)
+    assert np.abs(steps['action']).max() <= 1.0
+    recorded = np.ones(count, dtype=bool)
+    for end in np.flatnonzero(steps['done']):
+        recorded[end + 1 - HOLD_STEPS:end + 1] = False
+    still = np.abs(steps['action'][:, :3]).max(axis=1) < 0.02
+    unchanged = np.r_[False, steps['action'][1:, 3] == steps['action'][:-1, 3]]
+    assert not np.any(still & unchanged & recorded)
     # Each episode opens, then closes on the ball and keeps it closed; the lift is rewarded.
     grips = steps['action'][:, 3]
     assert grips[0] == 1.0 and -1.0 in grips and set(grips) <= {-1.0, 1.0}
     assert steps['reward'].max() == 0.0 and steps['reward'].min() == -1.0
+    # After the lift each episode holds the ball still at the goal, as the environment goes on.
+    for end in np.flatnonzero(steps['done']):
+        held = slice(end + 1 - HOLD_STEPS, end + 1)
+        assert steps['action'][held].tolist() == [[0.0, 0.0, 0.0, -1.0]] * HOLD_STEPS
+        assert np.all(steps['reward'][held] == 0.0)
+
+
+def test_a_fast_move_is_split_into_steps_within_the_bounds():
+    def observation(tcp, ball):
+        state = np.zeros(16, np.float32)
+        state[:3], state[7:10], state[10:13] = tcp, ball, np.subtract(ball, tcp)
+        return {'observation': state, 'achieved_goal': np.float32(ball),
+                'desired_goal': np.float32([0.4, 0.0, -0.02])}
+
+    ball = [0.4, 0.0, -0.17]
+    start, end = observation([0.5, 0.1, 0.0], ball), observation([0.5, -0.02, -0.03], ball)
+    steps = split_step(start, end, np.array([0.0, -1.0, -0.6, 1.0], np.float32))
+    assert len(steps) == 3 and steps[0][0] is start and steps[-1][2] is end
+    for (before, action, after) in steps:
+        np.testing.assert_allclose(action, [0.0, -0.8, -0.2, 1.0], atol=1e-6)
+        np.testing.assert_allclose(after['observation'][:3] - before['observation'][:3],
+                                   action[:3] * MAX_STEP, atol=1e-6)
+    middle = steps[1][0]['observation']
+    np.testing.assert_allclose(middle[3:6], [0.0, -0.4, -0.1], atol=1e-6)  # m/s
+    np.testing.assert_allclose(middle[10:13], np.subtract(ball, middle[:3]), atol=1e-6)
+    slow = split_step(start, observation([0.5, 0.08, 0.0], ball), np.zeros(4, np.float32))
+    assert len(slow) == 1 and np.allclose(slow[0][1], [0.0, -0.4, 0.0, 0.0])
 
 
 def test_gripper_commands_follow_the_fingers():
@@ -196,7 +232,7 @@ def test_train_policy_refuses_a_bad_dataset(tmp_path, case):
         [str(BIN / 'train_policy'), '--dataset', str(root), '--out', str(out)],
         capture_output=True, text=True, timeout=120)
     assert refused.returncode == 2, refused.stderr
-    assert refused.stderr.startswith('train_policy: ') and expected in refused.stderr
+    assert f'train_policy: {root}' in refused.stderr and expected in refused.stderr
     assert 'Traceback' not in refused.stderr and not out.exists()
 
 

@@ -17,7 +17,15 @@ in the graph):
 * action: the TCP's move to the next frame over MAX_STEP per axis (clipped to [-1, 1]), and
   the gripper: closed (-1) from the frame its opening starts to fall until it starts to rise;
 * the episode stops where the node would stop it: the ball lifted to the goal, or
-  EPISODE_STEPS; the last step is cut there as by a time limit.
+  EPISODE_STEPS; the last step is cut there as by a time limit. A lift is followed by
+  HOLD_STEPS steps of the ball held still there (closed, no move): the recording's episode
+  ends at the lift, the environment's go on to their last step, where success is judged;
+* a move further than MAX_STEP along an axis (the pick's joint moves are faster than the
+  environment's steps) is split into as many steps as it takes (split_step);
+* pauses are dropped: a step with the TCP still (under IDLE_MOVE) and the gripper command
+  unchanged (the pick waits for the fingers to close, and for its grasp check, with the arm
+  still; in the environment the step that closes the RG2 lasts until its fingers stop). The
+  step before a pause leads to the observation after it.
 
 Frames are taken at the environment's CONTROL_RATE (10 Hz): a data set at a multiple of it is
 subsampled, any other rate refused.
@@ -39,6 +47,7 @@ from ur_rg2_learning import EPISODE_STEPS, PICK_ID
 from ur_rg2_learning.envs import (
     BALL_RADIUS,
     BALL_SLICE,
+    BALL_VELOCITY_SLICE,
     CONTROL_RATE,
     MAX_STEP,
     OFFSET_SLICE,
@@ -54,6 +63,13 @@ CAMERA_POSITION = (1.3, -1.1, 0.95)
 CAMERA_LOOK_AT = (0.3, -0.1, 0.1)
 GRIPPER_CHANGE = 0.001  # m of opening per frame: the fingers are moving
 OBSERVATION_KEYS = ('achieved_goal', 'desired_goal', 'observation')
+# Steps of a lifted ball held still added after each episode that lifted it (as many as the
+# scripted demonstrations keep): a recorded episode ends at the lift, the environment's go on.
+HOLD_STEPS = 10
+# Action units (of MAX_STEP): a recorded step whose moves are all below this and whose gripper
+# command is the last one's is a pause of the demonstrator (the pick waiting for the fingers,
+# for its grasp check): dropped, so that one state does not ask for both waiting and moving.
+IDLE_MOVE = 0.02
 
 
 class DatasetError(ValueError):
@@ -153,6 +169,43 @@ def gripper_commands(openings: np.ndarray) -> np.ndarray:
     return commands
 
 
+def split_step(observation: dict, following: dict,
+               action: np.ndarray) -> list[tuple[dict, np.ndarray, dict]]:
+    """Return a recorded step as steps the environment can take: (observation, action, next).
+
+    A TCP that went further than MAX_STEP along an axis (the pick's joint moves reach 1 m/s,
+    the environment's steps 0.5 m/s) gives as many steps as that takes, each an equal part of
+    the move, the observations between on the straight line (TCP, ball, and the speeds of
+    each part); the recorded action would have been clipped, and the path not followed.
+    """
+    start, end = observation['observation'], following['observation']
+    move = (end[:3].astype(np.float64) - start[:3]) / MAX_STEP
+    parts = max(1, math.ceil(float(np.max(np.abs(move))) - 1e-6))
+    if parts == 1:
+        return [(observation, np.append(np.clip(move, -1.0, 1.0), action[3]).astype(
+            np.float32), following)]
+    step = np.append(move / parts, action[3]).astype(np.float32)
+    points = [observation]
+    for j in range(1, parts):
+        share = j / parts
+        state = start + share * (end - start)
+        state[3:6] = (end[:3] - start[:3]) / parts * CONTROL_RATE
+        state[BALL_VELOCITY_SLICE] = (end[BALL_SLICE] - start[BALL_SLICE]) / parts * CONTROL_RATE
+        state[6] = start[6]
+        points.append({'observation': state.astype(np.float32),
+                       'achieved_goal': state[BALL_SLICE].astype(np.float32),
+                       'desired_goal': observation['desired_goal']})
+    points.append(following)
+    return [(points[j], step, points[j + 1]) for j in range(parts)]
+
+
+def pause(actions: list[np.ndarray], i: int) -> bool:
+    """Return whether recorded step ``i`` is a pause: the TCP still, the gripper unchanged."""
+    action = actions[i]
+    still = float(np.max(np.abs(action[:3]))) < IDLE_MOVE
+    return still and (i == 0 or actions[i - 1][3] == action[3])
+
+
 class Frames:
     """Turns a data set's frames into Pick steps with the environment's arm and camera pose."""
 
@@ -198,6 +251,7 @@ class Frames:
                           BALL_RADIUS, math.inf)
         observations: list[dict] = []
         actions: list[np.ndarray] = []
+        recorded = len(states)  # steps taken from the recording (then the hold's)
         for i in range(first, len(states)):
             episode.closed = bool(closed[i - 1]) if i > first else False
             sighting = balls[i]
@@ -212,8 +266,14 @@ class Frames:
                 break
             if isinstance(observation, Outcome):
                 if observation.reached and observations:  # the step that lifted it counts
-                    observations.append(self._lifted(observations[-1], tcps[i - 1], tcps[i],
-                                                     openings[i], episode.goal))
+                    lifted = self._lifted(observations[-1], tcps[i - 1], tcps[i], openings[i],
+                                          episode.goal)
+                    observations.append(lifted)
+                    recorded = len(actions)
+                    # Then held still there: the environment's episodes go on to their end.
+                    held = self._lifted(lifted, tcps[i], tcps[i], openings[i], episode.goal)
+                    observations.extend([held] * HOLD_STEPS)
+                    actions.extend([np.array([0.0, 0.0, 0.0, -1.0], np.float32)] * HOLD_STEPS)
                 break
             observations.append(observation)
             if i + 1 == len(states):
@@ -226,12 +286,16 @@ class Frames:
                 break
         # A step needs the observation after it: as many steps as observations but the last.
         count = min(len(actions), len(observations) - 1)
-        for i in range(count):
-            last = i == count - 1
+        recorded = min(count, recorded)  # the steps after it hold the lifted ball: no pauses
+        kept = [i for i in range(count) if i >= recorded or not pause(actions, i)] + [count]
+        steps = [step for i, following in zip(kept[:-1], kept[1:])
+                 for step in split_step(observations[i], observations[following], actions[i])]
+        for n, (observation, action, following) in enumerate(steps):
+            last = n == len(steps) - 1
             for key in OBSERVATION_KEYS:
-                rows.setdefault(key, []).append(observations[i][key])
-                rows.setdefault(f'next_{key}', []).append(observations[i + 1][key])
-            rows.setdefault('action', []).append(actions[i])
+                rows.setdefault(key, []).append(observation[key])
+                rows.setdefault(f'next_{key}', []).append(following[key])
+            rows.setdefault('action', []).append(action)
             rows.setdefault('done', []).append(last)
             rows.setdefault('truncated', []).append(last)
         return rows

@@ -83,6 +83,7 @@ HYPERPARAMETERS = {
 INPUT_STD_FLOOR = 0.05  # m, m/s: the least deviation an input is standardised with
 NORMALISE_EPISODES = 10  # random episodes that set the input scaling when there are no demos
 CLONING_LR = 1e-3  # --dataset: Adam's learning rate for the cloning
+CLONING_BOUND = 0.9  # --dataset: the cloned actions are clipped to this, short of +-1
 DATASET_BC_EPOCHS = 300  # --dataset: passes of behaviour cloning over the data set's steps
 
 
@@ -172,8 +173,9 @@ def main(argv: list[str] | None = None) -> int:
                 or args.seeds:
             p.error(f'--dataset trains {PICK_ID}, one --seed, for --finetune-steps: no --env '
                     'Reach, --timesteps, --demos or --seeds with it')
-        if args.bc_epochs < 1 or args.finetune_steps < 0:
-            p.error('--bc-epochs must be positive and --finetune-steps not negative')
+        if args.bc_epochs < 0 or args.finetune_steps < 0 or not (
+                args.bc_epochs or args.finetune_steps):
+            p.error('--bc-epochs and --finetune-steps must not be negative, nor both 0')
         args.env, args.timesteps = PICK_ID, args.finetune_steps
     elif args.env is None or args.timesteps is None:
         p.error('--env and --timesteps are required (or --dataset)')
@@ -302,7 +304,7 @@ def train_seed(config: dict[str, Any], seed: int) -> dict[str, Any]:
                   action_low=env.action_space.low.tolist(),
                   action_high=env.action_space.high.tolist(), extra_meta=extra)
     add_demonstrations(model.replay_buffer, demonstrations)
-    if config.get('dataset'):
+    if config.get('dataset') and config['bc_epochs']:
         loss, took = clone_actor(model, demonstrations, config['bc_epochs'], seed)
         extra['cloned_before_rl'] = len(demonstrations['action'])
         extra['cloning_loss'] = round(loss, 5)
@@ -386,11 +388,13 @@ def write_result(result: dict[str, Any], out: Path) -> None:
 def method(config: dict[str, Any]) -> str:
     """Return what trains the policy, in words."""
     if config.get('dataset'):
-        words = (f"behaviour cloning ({config['bc_epochs']} epochs) of the data set "
-                 f"{Path(config['dataset']).name}'s episodes")
+        name = Path(config['dataset']).name
+        words = (f"behaviour cloning ({config['bc_epochs']} epochs) of the data set {name}'s "
+                 'episodes')
         if not config['timesteps']:
             return words
-        words += f", then {ALGORITHMS[config['algo']]} + HER with its steps in the buffer"
+        words = ((words + ', then ') if config['bc_epochs'] else '') + (
+            f"{ALGORITHMS[config['algo']]} + HER with the data set {name}'s steps in the buffer")
     else:
         words = f"{ALGORITHMS[config['algo']]} + HER"
     if config['demos']:
@@ -463,7 +467,10 @@ def clone_actor(model, demonstrations: dict[str, np.ndarray], epochs: int,
     device = model.device
     observations = {key: torch.as_tensor(demonstrations[key], device=device)
                     for key in model.observation_space.spaces}
-    actions = torch.as_tensor(demonstrations['action'], device=device)
+    # Short of tanh's saturation: a network fitted to +-1 exactly (the gripper's commands, the
+    # fastest moves) gets no gradient there when reinforcement learning takes over.
+    actions = torch.as_tensor(demonstrations['action'], device=device).clamp(
+        -CLONING_BOUND, CLONING_BOUND)
     optimizer = torch.optim.Adam(model.actor.parameters(), lr=CLONING_LR)
     rng = np.random.default_rng(seed)
     model.policy.set_training_mode(True)

@@ -17,6 +17,7 @@ from geometry_msgs.msg import PointStamped
 import numpy as np
 import pytest
 from rcl_interfaces.msg import Log
+from rclpy.duration import Duration
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
@@ -166,6 +167,25 @@ def test_depth_may_come_before_colour(ros_graph, tmp_path):
     rig.send_ball(3, depth_first=True)
     rig.wait_positions(1)
     assert rig.positions[0].header.stamp == header(3).stamp
+
+
+def test_a_node_that_fell_behind_goes_on_with_the_newest_frame(ros_graph, tmp_path):
+    """Frames that came while the node was busy are dropped, not worked through in turn."""
+    vision = VisionNode(context=ros_graph.context, parameter_overrides=[
+        Parameter('frames_dir', value=str(tmp_path / 'frames'))])
+    rig = Rig(ros_graph, vision)  # matched, but not spun yet: as busy with a long frame
+    for sec in range(1, 5):
+        rig.send_ball(sec)
+        for publisher in (rig.color, rig.depth):  # in the node's reader
+            assert publisher.wait_for_all_acked(Duration(seconds=TIMEOUT))
+    ros_graph.add(vision)
+    rig.wait_positions(1)
+    rig.wait_images(1)
+    assert [p.header.stamp.sec for p in rig.positions] == [4]
+    assert [i.header.stamp.sec for i in rig.images] == [4]
+    rig.send_ball(5)  # and on at the camera's pace
+    rig.wait_positions(2)
+    assert [p.header.stamp.sec for p in rig.positions] == [4, 5]
 
 
 def test_colour_without_depth_gives_image_but_no_position(ros_graph, tmp_path):

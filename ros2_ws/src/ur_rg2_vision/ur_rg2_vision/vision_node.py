@@ -14,17 +14,26 @@ image gives the position first (publishing the image costs 1-2 ms).
 
 All callbacks run one at a time on one thread (rclpy's multi-threaded executor costs twice the
 CPU here and falls behind at 30 Hz): no locks, and a save (~10 ms for both PNGs) simply delays
-the next frame a little.
+the next frame a little. OpenCV runs on that thread too (``main``): its worker threads cost
+more CPU than they save on a frame this size (the learned detector's input: 7.5 ms of CPU a
+640x480 frame with two threads, 5.5 ms with one).
+
+The node works on the newest frame: the image readers keep one message each (KEEP_LAST 1), so
+when a frame takes longer than the camera's period (the learned detector on a busy machine)
+DDS drops the frames that came meanwhile instead of queueing them, and the position published
+is at most about a period older than the frame's own work.
 """
 
 from dataclasses import dataclass
 import sys
 import time
 
+import cv2
 from geometry_msgs.msg import Point, PointStamped
 import numpy as np
 from rclpy.exceptions import ParameterException
 from rclpy.node import Node
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
@@ -49,7 +58,12 @@ _WARN_PERIOD_S = 10.0  # a persisting input problem is logged again after this l
 # frames without camera_info are only worth a warning after this many, and this long.
 _INFO_GRACE_FRAMES = 10
 _INFO_GRACE_S = 2.0
-
+# The camera's images: reliable, as IMAGE_QOS (best-effort readers lose most fragments of an
+# image), but only the newest one kept. A learned frame takes 18-25 ms of the 33 ms period,
+# more when other processes share the cores: with IMAGE_QOS's five, a node that fell behind
+# worked through up to five stale frames (colour stamp -> ball/position p95 190-220 ms).
+_NEWEST_IMAGE_QOS = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
+                              reliability=ReliabilityPolicy.RELIABLE)
 
 
 @dataclass
@@ -93,8 +107,10 @@ class VisionNode(Node):
         # any executor. camera_info first: of messages ready together, it is taken first.
         self.create_subscription(CameraInfo, 'camera/color/camera_info', self._on_camera_info,
                                  IMAGE_QOS)
-        self.create_subscription(Image, 'camera/color/image_raw', self._on_color, IMAGE_QOS)
-        self.create_subscription(Image, 'camera/depth/image_raw', self._on_depth, IMAGE_QOS)
+        self.create_subscription(Image, 'camera/color/image_raw', self._on_color,
+                                 _NEWEST_IMAGE_QOS)
+        self.create_subscription(Image, 'camera/depth/image_raw', self._on_depth,
+                                 _NEWEST_IMAGE_QOS)
         self._position_pub = self.create_publisher(PointStamped, 'ball/position', 10)
         self._image_pub = self.create_publisher(Image, 'ball/image', IMAGE_QOS)
         # The executor takes a triggered guard condition after the subscriptions ready with it.
@@ -291,6 +307,7 @@ class VisionNode(Node):
 def main(args: list[str] | None = None) -> int:
     """Run the node until Ctrl-C / SIGTERM; exit code 1 on invalid parameters."""
     keep_freed_memory()
+    cv2.setNumThreads(1)  # see the module's docstring
     return run_node(VisionNode, args, NODE_NAME, startup_errors=(ValueError, ParameterException))
 
 

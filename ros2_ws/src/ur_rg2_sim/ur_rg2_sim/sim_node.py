@@ -5,6 +5,7 @@ import sys
 from typing import Optional
 
 from builtin_interfaces.msg import Time
+import cv2
 import rclpy
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.exceptions import ParameterException
@@ -279,6 +280,9 @@ class SimNode(Node):
 
 def main(args: Optional[list[str]] = None) -> int:
     """Run the simulator node until Ctrl-C or SIGTERM."""
+    # The camera's colour conversions are too small for OpenCV's worker threads, which then
+    # spin waiting for work (docs/benchmark.md).
+    cv2.setNumThreads(1)
     return run_node(SimNode, args, 'ur_rg2_sim',
                     startup_errors=(CommandError, RobotModelError, RendererError,
                                     ParameterException),

@@ -15,8 +15,7 @@ image gives the position first (publishing the image costs 1-2 ms).
 All callbacks run one at a time on one thread (rclpy's multi-threaded executor costs twice the
 CPU here and falls behind at 30 Hz): no locks, and a save (~10 ms for both PNGs) simply delays
 the next frame a little. OpenCV runs on that thread too (``main``): its worker threads cost
-more CPU than they save on a frame this size (the learned detector's input: 7.5 ms of CPU a
-640x480 frame with two threads, 5.5 ms with one).
+more CPU than they save on a frame this size (docs/benchmark.md).
 
 The node works on the newest frame: the image readers keep one message each (KEEP_LAST 1), so
 when a frame takes longer than the camera's period (the learned detector on a busy machine)

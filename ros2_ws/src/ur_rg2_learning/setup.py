@@ -7,7 +7,8 @@ setup(
     version='0.1.0',
     packages=find_packages(exclude=['test']),
     # The trained Reach and Pick policies the policy node runs.
-    package_data={package_name: ['policies/reach/*', 'policies/pick/*', 'policies/pick_cloned/*']},
+    package_data={package_name: ['policies/reach/*', 'policies/pick/*', 'policies/pick_cloned/*',
+                                 'policies/pick_demos/*']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),

@@ -20,11 +20,12 @@ import numpy as np
 
 ACTOR_FILE = 'actor.npz'
 META_FILE = 'policy.json'
-SHIPPED = ('reach', 'pick', 'pick_cloned')  # the policies that come with the package
+# The policies that come with the package.
+SHIPPED = ('reach', 'pick', 'pick_cloned', 'pick_demos')
 
 
 def shipped_policy(name: str = 'reach') -> str:
-    """Return the directory of a policy that comes with the package (``reach``, ``pick``)."""
+    """Return the directory of a policy that comes with the package (one of SHIPPED)."""
     return str(importlib.resources.files('ur_rg2_learning').joinpath('policies', name))
 
 

@@ -9,7 +9,7 @@ from ur_rg2_learning.tasks import BALL_RADIUS
 PARAMETERS = (
     ParameterSpec('policy_dir', 'reach', 'The policy to run: a directory written by '
                   "train_policy --out, or a policy shipped with the package: 'reach', "
-                  "'pick' or 'pick_cloned' (empty: 'reach')", read_only=True),
+                  "'pick', 'pick_cloned' or 'pick_demos' (empty: 'reach')", read_only=True),
     ParameterSpec('ball_radius', BALL_RADIUS, "The ball's radius, m: Reach's goal is its top, "
                   "Pick's success its bottom 10 cm above the floor", bounds=(0.005, 0.2)),
     ParameterSpec('ball_timeout', 1.0, 'policy/run needs a ball/position received at most '

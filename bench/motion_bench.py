@@ -41,7 +41,7 @@ from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 from ur_rg2_common.contract import LATCHED_QOS
 from ur_rg2_common.tf_buffer import FrameLookupError, TransformBuffer, set_pose
-from ur_rg2_learning.envs import BALL_DISTANCE, BALL_HEADING
+from ur_rg2_learning.tasks import BALL_DISTANCE, BALL_HEADING
 from ur_rg2_motion.kinematics import ArmKinematics, Box, KinematicsError
 from ur_rg2_motion.planning import gripper_down
 from ur_rg2_sim.robot_model import write_robot_urdf

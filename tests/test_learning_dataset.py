@@ -30,7 +30,7 @@ from ur_rg2_learning.dataset_demos import (
     read_dataset,
     split_step,
 )
-from ur_rg2_learning.envs import MAX_STEP
+from ur_rg2_learning.robot import MAX_STEP
 from ur_rg2_learning.scripted import pick_action
 
 BIN = Path(sys.executable).parent

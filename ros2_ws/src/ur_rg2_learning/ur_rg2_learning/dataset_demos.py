@@ -44,17 +44,16 @@ from ur_rg2_common.camera_pose import optical_rotation
 from ur_rg2_common.contract import RG2_MAX_OPENING
 
 from ur_rg2_learning import EPISODE_STEPS, PICK_ID
-from ur_rg2_learning.envs import (
+from ur_rg2_learning.episode import Episode, Outcome
+from ur_rg2_learning.robot import CONTROL_RATE, MAX_STEP
+from ur_rg2_learning.tasks import (
     BALL_RADIUS,
     BALL_SLICE,
     BALL_VELOCITY_SLICE,
-    CONTROL_RATE,
-    MAX_STEP,
     OFFSET_SLICE,
     pick_goal,
     pick_observation,
 )
-from ur_rg2_learning.episode import Episode, Outcome
 
 CODEBASE_VERSION = 'v3.0'
 STATE, ENVIRONMENT = 'observation.state', 'observation.environment_state'

@@ -10,20 +10,13 @@ observes Pick's ball as a camera sees it.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 from gymnasium import spaces
 import numpy as np
-from ur_rg2_sim.world import SimWorld, WorldConfig
 
-# The names imported `as` themselves are imported from here by modules that other work in
-# progress owns (dataset_demos.py, bench/motion_bench.py, tests/test_learning_dataset.py);
-# their homes are robot and tasks.
 from ur_rg2_learning.robot import CONTROL_RATE, UrRg2GrippingRobot, UrRg2Robot
-from ur_rg2_learning.robot import MAX_STEP as MAX_STEP
-from ur_rg2_learning.tasks import BALL_DISTANCE as BALL_DISTANCE
-from ur_rg2_learning.tasks import BALL_HEADING as BALL_HEADING
 from ur_rg2_learning.tasks import (
     BALL_RADIUS,
     BALL_SLICE,
@@ -33,8 +26,9 @@ from ur_rg2_learning.tasks import (
     Reach,
     Task,
 )
-from ur_rg2_learning.tasks import pick_goal as pick_goal
-from ur_rg2_learning.tasks import pick_observation as pick_observation
+
+if TYPE_CHECKING:
+    from ur_rg2_sim.world import SimWorld
 
 OBSERVATION_BOUND = 10.0  # m, m/s
 # m, per axis: the standard deviation of Gaussian noise on the ball's position that matches the
@@ -51,6 +45,10 @@ def _vector(size: int) -> spaces.Box:
 
 def _world(robot_model: str, substeps: int) -> SimWorld:
     """Return a world for a robot stepping its physics ``substeps`` times per action."""
+    # Imported here: pybullet prints its build line on import, which would come before a
+    # command's one-line usage error (evaluate_policy, train_policy).
+    from ur_rg2_sim.world import SimWorld, WorldConfig
+
     return SimWorld(WorldConfig(robot_model=robot_model, ball_radius=BALL_RADIUS,
                                 physics_rate=CONTROL_RATE * substeps))
 

@@ -6,13 +6,15 @@ detector, motion, viewer, 3D view) and ``record --all`` beside it, for ``GRAPH_S
 real-time factor (``/clock`` against the wall clock), the rates of joint states, colour,
 depth and ``ball/position`` in wall and simulation time, the colour frame's arrival here to
 its ``ball/position`` here (both transports and the vision node's work), the messages the
-recording kept against those this listener received over the recording's span, and the CPU
+recording kept against those this listener received over each topic's span in it, and the CPU
 of each process of the graph and of the recorder. Run alone: ``python -m bench graph``.
 """
 
 import collections
+import math
 import os
 from pathlib import Path
+import re
 import signal
 import struct
 import subprocess
@@ -182,7 +184,9 @@ def run() -> list[tuple[str, str, str]]:
             listener.close()
             graph_log.close()
             record_log.close()
-        recorded, span = _recorded(recording)
+        recorded = _recorded(recording, [f'/{topic}' for topic in TOPICS])
+        camera = re.search(r'camera: (\d+) frames drawn, (\d+) dropped',
+                           (Path(scratch) / 'graph.log').read_text(errors='replace'))
     wall = wall_after - wall_before
     sim = (clock_after[1] - clock_before[1]) / 1e9
     rows = [('graph: real-time factor (/clock against wall time)',
@@ -193,12 +197,14 @@ def run() -> list[tuple[str, str, str]]:
         count = counts_after[topic] - counts_before[topic]
         rows.append((f'graph: {topic} Hz, wall / simulation time',
                      f'{count / wall:.1f} / {count / sim:.1f}', f'>= {target}'))
+    rows.append(('graph: camera frames drawn / dropped by the sim, whole run',
+                 f'{camera[1]} / {camera[2]}' if camera else 'no summary in the log', ''))
     rows.append(('graph: colour frame -> ball/position here (learned), ms p50 / p95',
                  f'{percentile(listener.latency, 50):.1f} / '
                  f'{percentile(listener.latency, 95):.1f}', 'p95 <= 30 ms'))
     for topic in targets:
-        received = sum(span[0] <= t <= span[1] for t in listener.arrivals[topic])
-        kept = recorded.get(f'/{topic}', 0)
+        kept, first, last = recorded.get(f'/{topic}', (0, 0.0, 0.0))
+        received = sum(first <= t <= last for t in listener.arrivals[topic])
         rows.append((f'graph: recording kept / received here, {topic}',
                      f'{kept} / {received} ({kept / max(received, 1):.1%})', '>= 99 %'))
     busy = collections.Counter()
@@ -213,15 +219,19 @@ def run() -> list[tuple[str, str, str]]:
     return rows
 
 
-def _recorded(path: Path) -> tuple[dict[str, int], tuple[float, float]]:
-    """Return the recording's message count per topic and its span (wall seconds)."""
+def _recorded(path: Path, topics: list[str]) -> dict[str, tuple[int, float, float]]:
+    """Return, per topic, the recording's message count and its first and last log times.
+
+    Per topic: the recorder subscribes to each topic as it discovers it, so a topic's span
+    starts with its own first message, not the recording's (wall seconds).
+    """
+    found: dict[str, tuple[int, float, float]] = {}
     with open(path, 'rb') as stream:
-        summary = make_reader(stream).get_summary()
-    channels = {channel.id: channel.topic for channel in summary.channels.values()}
-    counts = {channels[cid]: n for cid, n in summary.statistics.channel_message_counts.items()}
-    span = (summary.statistics.message_start_time / 1e9,
-            summary.statistics.message_end_time / 1e9)
-    return counts, span
+        for _, channel, message in make_reader(stream).iter_messages(topics=topics):
+            count, first, last = found.get(channel.topic, (0, math.inf, -math.inf))
+            at = message.log_time / 1e9
+            found[channel.topic] = (count + 1, min(first, at), max(last, at))
+    return found
 
 
 if __name__ == '__main__':

@@ -48,6 +48,7 @@ FLOOR_CLEARANCE = 0.005  # m that the TCP, finger tips, wrist and elbow keep abo
 PEDESTAL_HALF_WIDTH = 0.11  # m, half the width of the column under base_link
 TCP = 'rg2_tcp'
 
+_TAU = 2 * math.pi
 # Below this the formulas lose a degree of freedom (see ArmKinematics.solve).
 _BOUNDARY_SINGULAR = 1e-6  # |sin(elbow)| or wrist centre distance - d4 (m): workspace boundary
 # How far (m) the DH model may put tool0 from where the description's chain has it.
@@ -273,18 +274,23 @@ class ArmKinematics:
         return None
 
 
+def _wrapped(angle: float, now: float, lo: float, hi: float) -> float | None:
+    """Return the 2 pi equivalent of ``angle`` nearest ``now``, moved into [lo, hi]; or None."""
+    angle = now + math.remainder(angle - now, _TAU)
+    if angle > hi:
+        angle -= _TAU
+    elif angle < lo:
+        angle += _TAU
+    return angle if lo <= angle <= hi else None
+
+
 def _within_limits(q: Sequence[float], current: Sequence[float],
                    limits: Sequence[tuple[float, float]]) -> list[float] | None:
     """Return ``q`` with each joint the 2 pi equivalent nearest current inside the limits."""
     result = []
-    remainder, tau = math.remainder, 2 * math.pi
     for angle, now, (lo, hi) in zip(q, current, limits):
-        angle = now + remainder(angle - now, tau)
-        if angle > hi:
-            angle -= tau
-        elif angle < lo:
-            angle += tau
-        if not lo <= angle <= hi:
+        angle = _wrapped(angle, now, lo, hi)
+        if angle is None:
             return None
         result.append(angle)
     return result
@@ -300,16 +306,11 @@ def _nearest(pans: list[tuple[float, Callable[[], list[tuple]]]], current: Seque
     too: rounding is monotonic, so adding non-negative terms never gives a smaller sum), and a
     shoulder pan whose own term already does is not solved for.
     """
-    remainder, tau = math.remainder, 2 * math.pi
     pan_now, (pan_low, pan_high) = current[0], limits[0]
     order = []
     for pan, solutions in pans:  # joint 0 taken as _within_limits takes it
-        pan = pan_now + remainder(pan - pan_now, tau)
-        if pan > pan_high:
-            pan -= tau
-        elif pan < pan_low:
-            pan += tau
-        if pan_low <= pan <= pan_high:
+        pan = _wrapped(pan, pan_now, pan_low, pan_high)
+        if pan is not None:
             order.append(((pan - pan_now) ** 2, solutions))
     order.sort(key=lambda item: item[0])  # the nearest pan first
     best, best_cost = None, math.inf
@@ -319,12 +320,8 @@ def _nearest(pans: list[tuple[float, Callable[[], list[tuple]]]], current: Seque
         for branch in solutions():
             q, cost = [], 0
             for angle, now, (lo, hi) in zip(branch, current, limits):
-                angle = now + remainder(angle - now, tau)
-                if angle > hi:
-                    angle -= tau
-                elif angle < lo:
-                    angle += tau
-                if not lo <= angle <= hi:
+                angle = _wrapped(angle, now, lo, hi)
+                if angle is None:
                     break
                 cost += (angle - now) ** 2
                 if cost > best_cost:

@@ -7,6 +7,7 @@ change what they should), not to master a task (the shipped policies and docs/le
 3-seed table measure that).
 """
 
+import json
 import os
 from pathlib import Path
 import re
@@ -79,21 +80,24 @@ def test_train_save_load_evaluate(tmp_path):
 
 def test_the_exported_actor_is_the_network_with_its_input_standardisation():
     from stable_baselines3 import TD3
-    from ur_rg2_learning.train import export, standardising_extractor
+    from ur_rg2_learning.td3_cloning import StandardisingExtractor
+    from ur_rg2_learning.train_config import TrainConfig
+    from ur_rg2_learning.training_run import export
 
     env = gym.make(PICK_ID)
     try:
         rng = np.random.default_rng(0)
         mean, std = rng.normal(0, 0.3, 22).tolist(), rng.uniform(0.01, 1.0, 22).tolist()
         model = TD3('MultiInputPolicy', env, seed=0, policy_kwargs={
-            'net_arch': [32, 32], 'features_extractor_class': standardising_extractor(),
+            'net_arch': [32, 32], 'features_extractor_class': StandardisingExtractor,
             'features_extractor_kwargs': {'mean': mean, 'std': std}})
-        record = {'env': PICK_ID, 'algo': 'td3', 'observation_keys':
-                  list(env.observation_space.spaces), 'action_low': [-1.0] * 4,
-                  'action_high': [1.0] * 4, 'seed': 0, 'demos': 0, 'bc': 0.0,
-                  'q_filter': True, 'critic_warmup': 0, 'grasped_share': 0.0,
-                  'net': [32, 32], 'actor_lr_share': 0.1}
-        actor = export(model, record, 0, 0.0, [])
+        facts = {'seed': 0, 'observation_keys': list(env.observation_space.spaces),
+                 'action_low': [-1.0] * 4, 'action_high': [1.0] * 4}
+        config = TrainConfig(PICK_ID, net_arch=(32, 32), bc=2.5, clip_return=True)
+        actor = export(model, config, facts, 0, 0.0, [])
+        # policy.json is written from the config and reads back into it (the run-only
+        # fields, not in it, at their defaults).
+        assert TrainConfig.from_policy(json.loads(json.dumps(actor.meta))) == config
         observation, _ = env.reset(seed=SEED)
         for _ in range(5):
             expected, _ = model.predict(observation, deterministic=True)
@@ -103,21 +107,31 @@ def test_the_exported_actor_is_the_network_with_its_input_standardisation():
         env.close()
 
 
-def td3_on_pick(env, demonstrations: dict, net: list[int], *cloning):
-    """Return a TD3 + HER model on Pick, ``with_cloning(TD3, *cloning)``, demonstrations in."""
-    from stable_baselines3 import TD3, HerReplayBuffer
-    from ur_rg2_learning.train import (
-        add_demonstrations,
-        input_scaling,
-        standardising_extractor,
-        with_cloning,
-    )
+def test_the_shipped_policies_read_into_a_train_config():
+    from ur_rg2_learning.actor import SHIPPED, shipped_policy
+    from ur_rg2_learning.train_config import TrainConfig
+
+    for name in SHIPPED:
+        meta = Actor.load(shipped_policy(name)).meta  # older ones lack later fields
+        config = TrainConfig.from_policy(meta)
+        assert config.env_id == meta['env_id'] and config.algo == meta['algo']
+        assert list(config.net_arch) == meta['hyperparameters']['net_arch']
+        written = config.policy_fields()
+        assert {key: meta[key] for key in written if key in meta} == {
+            key: value for key, value in written.items() if key in meta}
+
+
+def td3_on_pick(env, demonstrations: dict, net: list[int], **cloning):
+    """Return a TD3 + HER model on Pick, ``TD3Cloning(**cloning)``, demonstrations in."""
+    from stable_baselines3 import HerReplayBuffer
+    from ur_rg2_learning.demonstrations import add_demonstrations, input_scaling
+    from ur_rg2_learning.td3_cloning import StandardisingExtractor, TD3Cloning
 
     mean, std = input_scaling(PICK_ID, demonstrations)
-    model = with_cloning(TD3, *cloning)(
-        'MultiInputPolicy', env, seed=0, batch_size=64, learning_starts=10,
+    model = TD3Cloning(
+        'MultiInputPolicy', env, **cloning, seed=0, batch_size=64, learning_starts=10,
         replay_buffer_class=HerReplayBuffer, policy_kwargs={
-            'net_arch': net, 'features_extractor_class': standardising_extractor(),
+            'net_arch': net, 'features_extractor_class': StandardisingExtractor,
             'features_extractor_kwargs': {'mean': mean, 'std': std}})
     add_demonstrations(model.replay_buffer, demonstrations)
     return model
@@ -126,11 +140,11 @@ def td3_on_pick(env, demonstrations: dict, net: list[int], *cloning):
 @pytest.fixture(scope='module')
 def pick_model():
     """Yield a TD3 + HER model on Pick with 3 scripted demonstrations in its buffer."""
-    from ur_rg2_learning.train import scripted_demonstrations
+    from ur_rg2_learning.demonstrations import scripted_demonstrations
 
     demonstrations = scripted_demonstrations(PICK_ID, 3)
     env = gym.make(PICK_ID)
-    yield td3_on_pick(env, demonstrations, [64, 64], 0.1), demonstrations
+    yield td3_on_pick(env, demonstrations, [64, 64], actor_lr_share=0.1), demonstrations
     env.close()
 
 
@@ -144,7 +158,6 @@ def test_demonstrations_are_whole_lifts_in_the_buffer(pick_model):
 
 def test_the_critic_warms_up_on_the_demonstrations_and_the_actor_stays(pick_model):
     import torch
-    from ur_rg2_learning.train import warm_up_critic
 
     model, demonstrations = pick_model
     actor = [p.detach().clone() for p in model.actor.parameters()]
@@ -153,7 +166,7 @@ def test_the_critic_warms_up_on_the_demonstrations_and_the_actor_stays(pick_mode
     actions = torch.as_tensor(demonstrations['action'])
     with torch.no_grad():
         before = model.critic.q1_forward(observations, actions).mean().item()
-    warm_up_critic(model, 200)
+    model.warm_up_critic(200)
     with torch.no_grad():
         after = model.critic.q1_forward(observations, actions).mean().item()
     assert all(torch.equal(a, b) for a, b in zip(actor, model.actor.parameters()))
@@ -163,7 +176,6 @@ def test_the_critic_warms_up_on_the_demonstrations_and_the_actor_stays(pick_mode
 
 def test_clipped_targets_keep_the_critic_within_the_returns(pick_model):
     import torch
-    from ur_rg2_learning.train import warm_up_critic
 
     model, demonstrations = pick_model
     keys = list(model.observation_space.spaces)
@@ -171,7 +183,11 @@ def test_clipped_targets_keep_the_critic_within_the_returns(pick_model):
     actions = torch.as_tensor(demonstrations['action'])
     # Bounds far tighter than the rewards' (-20 to 0 with gamma 0.95): the critic is pulled
     # into them, where unclipped warm-up takes it below (the test above).
-    warm_up_critic(model, 300, q_bounds=(-0.5, 0.0))
+    model.q_bounds = (-0.5, 0.0)
+    try:
+        model.warm_up_critic(300)
+    finally:
+        model.q_bounds = None
     with torch.no_grad():
         values = torch.cat(model.critic(observations, actions), dim=1)
     assert -0.7 < values.mean().item() < 0.1, values.mean().item()
@@ -180,7 +196,7 @@ def test_clipped_targets_keep_the_critic_within_the_returns(pick_model):
 def test_the_actor_update_adds_cloning_and_an_action_penalty():
     from stable_baselines3.common.logger import Logger
     import torch
-    from ur_rg2_learning.train import Cloning, scripted_demonstrations
+    from ur_rg2_learning.demonstrations import Cloning, scripted_demonstrations
 
     demonstrations = scripted_demonstrations(PICK_ID, 2)
     env = gym.make(PICK_ID)
@@ -189,11 +205,15 @@ def test_the_actor_update_adds_cloning_and_an_action_penalty():
     try:
         moves = {}
         for penalty in (0.0, 100.0):
-            model = td3_on_pick(env, demonstrations, [32, 32], 1.0, (-20.0, 0.0), penalty)
+            model = td3_on_pick(env, demonstrations, [32, 32], actor_lr_share=1.0,
+                                q_bounds=(-20.0, 0.0), action_l2=penalty)
             model.set_logger(Logger(None, []))  # train() logs; a Logger with no outputs
             model.cloning = Cloning(model, demonstrations, 1.0)
             model.train(200, 64)
             assert model._n_updates == 200 and 0.0 <= model.cloning.share <= 1.0
+            logged = model.logger.name_to_value
+            assert {'train/critic_loss', 'train/actor_loss', 'train/cloning_loss'} <= set(logged)
+            assert logged['train/cloning_loss'] >= 0.0
             with torch.no_grad():
                 moves[penalty] = (model.actor(observations)[:, :3] ** 2).mean().item()
         assert moves[100.0] < 0.5 * moves[0.0], moves
@@ -203,7 +223,7 @@ def test_the_actor_update_adds_cloning_and_an_action_penalty():
 
 def test_cloning_moves_the_actor_toward_the_demonstrated_actions(pick_model):
     import torch
-    from ur_rg2_learning.train import Cloning
+    from ur_rg2_learning.demonstrations import Cloning
 
     model, demonstrations = pick_model
     cloning = Cloning(model, demonstrations, weight=1.0, q_filter=False)
@@ -225,7 +245,7 @@ def test_cloning_moves_the_actor_toward_the_demonstrated_actions(pick_model):
 
 
 def test_a_fading_cloning_term_falls_to_nothing(pick_model):
-    from ur_rg2_learning.train import Cloning
+    from ur_rg2_learning.demonstrations import Cloning
 
     model, demonstrations = pick_model
     cloning = Cloning(model, demonstrations, weight=1.0, q_filter=False, fade=100)
@@ -358,12 +378,12 @@ def test_cloning_only_needs_a_cloning_term():
 
 def test_cloning_only_takes_out_the_q_term_and_nothing_else():
     import torch
-    from ur_rg2_learning.train import Cloning, scripted_demonstrations
+    from ur_rg2_learning.demonstrations import Cloning, scripted_demonstrations
 
     demonstrations = scripted_demonstrations(PICK_ID, 1)
     env = gym.make(PICK_ID)
     try:
-        model = td3_on_pick(env, demonstrations, [16, 16], 1.0, None, 5.0)
+        model = td3_on_pick(env, demonstrations, [16, 16], actor_lr_share=1.0, action_l2=5.0)
         model.cloning = Cloning(model, demonstrations, 1.0, alone=True)
         data = model.replay_buffer.sample(32)
         losses = []

@@ -1,7 +1,7 @@
 """A LeRobot data set (``to_lerobot``'s, codebase v3.0) as Pick demonstrations. No torch, no ROS.
 
 ``train_policy --dataset DIR`` clones the Pick environment's action from these steps and may
-fine-tune with them in the replay buffer (ur_rg2_learning.train). A frame of the data set
+fine-tune with them in the replay buffer (ur_rg2_learning.training_run). A frame of the data set
 holds the six arm joints and the RG2's opening (``observation.state``), the ball as vision saw
 it in the camera's optical frame and whether it was seen (``observation.environment_state``)
 and the next frame's state (``action``). Each frame becomes the step the policy node would
@@ -304,7 +304,7 @@ def demonstrations(dataset: Dataset, env: Any,
                    camera_position: tuple[float, float, float] = CAMERA_POSITION,
                    camera_look_at: tuple[float, float, float] = CAMERA_LOOK_AT
                    ) -> dict[str, np.ndarray]:
-    """Return the data set's steps as train.scripted_demonstrations returns its own.
+    """Return the data set's steps in the form of demonstrations.scripted_demonstrations.
 
     ``env`` is a Pick environment (its arm, pedestal and reward); each episode's steps come
     one after the other, the last of each marked done (cut as by a time limit). DatasetError

@@ -17,10 +17,11 @@ from typing import Any
 
 from ur_rg2_learning.actor import Actor, write_atomically
 from ur_rg2_learning.ray_tasks import markdown_table, ray_map
-from ur_rg2_learning.train import plot_curves, summary, train_seed, write_result
+from ur_rg2_learning.train_config import TrainConfig
+from ur_rg2_learning.training_run import plot_curves, summary, train_seed, write_result
 
 
-def run_seeds(config: dict[str, Any], seeds: list[int], out: Path, num_cpus: int | None,
+def run_seeds(config: TrainConfig, seeds: list[int], out: Path, num_cpus: int | None,
               address: str | None) -> int:
     """Train ``seeds`` as Ray tasks; write each, the table and the picture; return 0."""
     results = ray_map(train_seed, [(config, seed) for seed in seeds], num_cpus, address)

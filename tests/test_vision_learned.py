@@ -35,8 +35,8 @@ from ur_rg2_vision.learned import (
     BallModel,
     ModelError,
     box_detection,
-    depth_relief,
 )
+from ur_rg2_vision.learned_input import depth_relief
 from ur_rg2_vision.localize import locate_ball
 from ur_rg2_vision.placement import COLOR_GROUPS
 from ur_rg2_vision.ros_image import rgb_to_image

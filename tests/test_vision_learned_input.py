@@ -3,14 +3,15 @@
 :class:`ur_rg2_vision.learned.BallModel` letterboxes each frame into arrays it keeps (the
 network's input, the relief's steps) instead of allocating them per frame. The model was
 trained on the input of the plain per-frame code below (``train_detector`` builds it with
-:func:`~ur_rg2_vision.learned.depth_relief`): the kept arrays must give exactly that, whatever
-frame came before, in whatever size.
+:func:`~ur_rg2_vision.learned_input.depth_relief`): the kept arrays must give exactly that,
+whatever frame came before, in whatever size.
 """
 
 import cv2
 import numpy as np
 import pytest
-from ur_rg2_vision.learned import BallModel, depth_relief
+from ur_rg2_vision.learned import BallModel
+from ur_rg2_vision.learned_input import depth_relief
 
 SIGMA, GAIN, STEP, PAD, GREY = 8.0, 20.0, 2, 32, 114  # learned.py's constants
 

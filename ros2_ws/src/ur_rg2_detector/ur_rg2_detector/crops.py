@@ -12,7 +12,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from ur_rg2_vision.learned import depth_relief
+from ur_rg2_vision.learned_input import depth_relief
 
 from ur_rg2_detector.evaluate_detector import label_box, read_depth
 

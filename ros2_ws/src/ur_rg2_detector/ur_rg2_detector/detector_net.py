@@ -8,7 +8,7 @@ and the box's log size. :class:`Exported` decodes that in the graph, so the ONNX
 local maximum): the same layout as a YOLOv8 export with one class, which
 :class:`ur_rg2_vision.learned.BallModel` reads. Written for this project (Apache-2.0); no
 pretrained weights. A fourth input channel, the depth's relief
-(:func:`ur_rg2_vision.learned.depth_relief`), shows what stands out of its surroundings.
+(:func:`ur_rg2_vision.learned_input.depth_relief`), shows what stands out of its surroundings.
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ class BallNet(nn.Module):
     """Backbone, pyramid and head; ``forward`` gives the raw 5-channel map at stride 8.
 
     ``in_channels``: 3 (RGB) or 4 (RGB and the depth's relief,
-    :func:`ur_rg2_vision.learned.depth_relief`).
+    :func:`ur_rg2_vision.learned_input.depth_relief`).
     """
 
     def __init__(self, in_channels: int = 3) -> None:

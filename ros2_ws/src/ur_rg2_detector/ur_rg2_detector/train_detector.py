@@ -4,7 +4,7 @@ Trains :class:`ur_rg2_detector.detector_net.BallNet` (a compact CenterNet writte
 project in plain torch, Apache-2.0; no pretrained weights, no detection library) from scratch
 on the CPU, or further from a model it exported (``--init``), on the data set's ``data.yaml``
 (YOLO layout); with ``--depth`` the network also sees each frame's depth relief
-(:func:`ur_rg2_vision.learned.depth_relief`). The frames and their crops:
+(:func:`ur_rg2_vision.learned_input.depth_relief`). The frames and their crops:
 :mod:`ur_rg2_detector.crops`; the run, the best epoch's export and what it writes to ``--out``
 (``model.onnx``, ``detector.json``, ``results.csv``, ``training_curve.png``):
 :mod:`ur_rg2_detector.training`. ``--seeds A B ...`` trains each seed as a Ray task and writes

@@ -23,14 +23,8 @@ import time
 
 import numpy as np
 from ur_rg2_learning.actor import write_atomically
-from ur_rg2_vision.learned import (
-    DEPTH_RELIEF,
-    MODEL_FILE,
-    RGB,
-    SETTINGS_FILE,
-    BallModel,
-    input_channels,
-)
+from ur_rg2_vision.learned import MODEL_FILE, SETTINGS_FILE, BallModel
+from ur_rg2_vision.learned_input import DEPTH_RELIEF, RGB, input_channels
 
 from ur_rg2_detector.crops import (
     HARD_SCORE,

@@ -27,80 +27,14 @@ from typing import Optional
 import cv2
 import numpy as np
 
+from ur_rg2_sim.gl_shaders import (
+    BODY_FRAGMENT,
+    BODY_VERTEX,
+    FLOOR_FRAGMENT,
+    FLOOR_VERTEX,
+    SHAPES_PER_DRAW,
+)
 from ur_rg2_sim.render_scene import GeometryKey, SceneSnapshot, shape_mesh
-
-# Shapes drawn in one call: each vertex names its shape, whose pose and colour come from
-# uniform blocks (std140: a mat4 is 64 bytes, a vec4 16). 256 of each fits the 16 KB a block
-# may always hold; a scene with more shapes is drawn in several calls.
-_SHAPES_PER_DRAW = 256
-
-_BODY_VERTEX = """
-#version 330
-layout(std140) uniform Poses { mat4 poses[256]; };
-layout(std140) uniform Colors { vec4 colors[256]; };
-uniform mat4 view_projection;
-in vec3 in_position;
-in vec3 in_normal;
-in int in_shape;
-out vec3 world_normal;
-flat out vec3 color;
-void main() {
-    mat4 model = poses[in_shape];
-    world_normal = mat3(model) * in_normal;
-    color = colors[in_shape].rgb;
-    gl_Position = view_projection * (model * vec4(in_position, 1.0));
-}
-"""
-
-# TinyRenderer's shader (bullet3 examples/TinyRenderer): the specular term uses the world z
-# of the reflected light, with exponent 2 when a model has no specular map. The depth output
-# is the fragment's optical z in metres: the clip w of this camera's projection, 1 / w here.
-_BODY_FRAGMENT = """
-#version 330
-uniform vec3 light;
-in vec3 world_normal;
-flat in vec3 color;
-layout(location = 0) out vec4 out_color;
-layout(location = 1) out float out_depth;
-void main() {
-    vec3 n = normalize(world_normal);
-    float lit = dot(n, light);
-    // The z of the light reflected about n (unit: n and light are), squared.
-    float specular = max(n.z * (lit * 2.0) - light.z, 0.0);
-    float intensity = 0.6 + min(max(0.0, lit) * 0.35 + specular * specular * 0.05, 0.4);
-    out_color = vec4(floor(floor(255.0 * intensity) * color) / 255.0, 1.0);
-    out_depth = 1.0 / gl_FragCoord.w;
-}
-"""
-
-# The floor plane z = 0 as the camera's own floor model computes it (camera.py): tiles of
-# two colours, one Lambert shade, truncated to 8 bits. Tile coordinates come from the vertex
-# shader: the less a fragment computes, the less llvmpipe spends on the screenful of floor.
-_FLOOR_VERTEX = """
-#version 330
-uniform mat4 view_projection;
-uniform float per_tile;
-in vec2 in_xy;
-out vec2 tile_xy;
-void main() {
-    tile_xy = in_xy * per_tile;
-    gl_Position = view_projection * vec4(in_xy, 0.0, 1.0);
-}
-"""
-
-_FLOOR_FRAGMENT = """
-#version 330
-uniform vec3 tile_colors[2];
-in vec2 tile_xy;
-layout(location = 0) out vec4 out_color;
-layout(location = 1) out float out_depth;
-void main() {
-    vec2 tile = floor(tile_xy);
-    float parity = tile.x + tile.y - 2.0 * floor(0.5 * (tile.x + tile.y));
-    out_color = vec4(mix(tile_colors[0], tile_colors[1], parity) / 255.0, 1.0);
-    out_depth = 1.0 / gl_FragCoord.w;
-}
-"""
 
 
 @dataclass(frozen=True)
@@ -182,11 +116,11 @@ class GlRenderer:
                  clip: tuple[float, float], floor: FloorLook) -> None:
         self.ctx = ctx = context
         self.width, self.height = width, height
-        self._body = ctx.program(vertex_shader=_BODY_VERTEX, fragment_shader=_BODY_FRAGMENT)
-        self._floor = ctx.program(vertex_shader=_FLOOR_VERTEX, fragment_shader=_FLOOR_FRAGMENT)
+        self._body = ctx.program(vertex_shader=BODY_VERTEX, fragment_shader=BODY_FRAGMENT)
+        self._floor = ctx.program(vertex_shader=FLOOR_VERTEX, fragment_shader=FLOOR_FRAGMENT)
         self._body['Poses'].binding, self._body['Colors'].binding = 0, 1
-        self._poses = ctx.buffer(reserve=64 * _SHAPES_PER_DRAW, dynamic=True)
-        self._colors = ctx.buffer(reserve=16 * _SHAPES_PER_DRAW, dynamic=True)
+        self._poses = ctx.buffer(reserve=64 * SHAPES_PER_DRAW, dynamic=True)
+        self._colors = ctx.buffer(reserve=16 * SHAPES_PER_DRAW, dynamic=True)
         near, far = clip
         a, b = (far + near) / (far - near), -2 * far * near / (far - near)
         # Optical frame to clip space with pixel i's centre (window i + 0.5) on coordinate i;
@@ -263,7 +197,7 @@ class GlRenderer:
             # Column-major, as OpenGL reads a mat4: each pose transposed.
             poses = snapshot.poses.transpose(0, 2, 1)
             for start, vao in layout.draws:
-                end = start + _SHAPES_PER_DRAW
+                end = start + SHAPES_PER_DRAW
                 self._poses.write(np.ascontiguousarray(poses[start:end], dtype=np.float32))
                 self._colors.write(np.ascontiguousarray(snapshot.colors[start:end],
                                                         dtype=np.float32))
@@ -354,15 +288,15 @@ _VERTEX = np.dtype([('position', '<f4', 3), ('normal', '<f4', 3), ('shape', '<i4
 class _Layout:
     """A set of shapes on the GPU: ``draws``, (first shape, vertex array) pairs, and boxes.
 
-    Each vertex array holds up to :data:`_SHAPES_PER_DRAW` shapes' triangles in one indexed
+    Each vertex array holds up to :data:`SHAPES_PER_DRAW` shapes' triangles in one indexed
     buffer, each vertex with its shape's index in the draw. ``corners`` (n, 4, 8) are the
     corners of each shape's bounding box in its own frame, as homogeneous columns.
     """
 
     def __init__(self, ctx, program, keys: tuple[GeometryKey, ...]) -> None:
         self.draws, self._resources = [], []
-        for start in range(0, len(keys), _SHAPES_PER_DRAW):
-            vertices, indices = _merged_meshes(keys[start:start + _SHAPES_PER_DRAW])
+        for start in range(0, len(keys), SHAPES_PER_DRAW):
+            vertices, indices = _merged_meshes(keys[start:start + SHAPES_PER_DRAW])
             buffer, index_buffer = ctx.buffer(vertices), ctx.buffer(indices)
             vao = ctx.vertex_array(
                 program, [(buffer, '3f 3f 1i', 'in_position', 'in_normal', 'in_shape')],

@@ -34,6 +34,10 @@ LATCHED_QOS = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
 # slow reader then costs a publisher a few frames of memory, never its pace.
 IMAGE_QOS = QoSProfile(depth=5, history=HistoryPolicy.KEEP_LAST,
                        reliability=ReliabilityPolicy.RELIABLE)
+# The same for a reader that only wants the newest image (vision): when a frame takes it
+# longer than the camera's period, the frames that came meanwhile are dropped, not queued.
+NEWEST_IMAGE_QOS = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
+                              reliability=ReliabilityPolicy.RELIABLE)
 TF_QOS = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST,
                     reliability=ReliabilityPolicy.RELIABLE)
 # Episode markers (std_msgs/String on EPISODE_TOPIC, ur_rg2_common.episode publishes them):

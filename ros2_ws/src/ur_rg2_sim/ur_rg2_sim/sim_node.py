@@ -98,11 +98,9 @@ class SimNode(Node):
             self.get_logger().info(f'camera rendered by {camera.renderer.reason}')
         self._sim = SimulationLoop(self._world, self, s.schedule(), camera)
         self._controllers = Controllers(self, self._sim)
-        # Where reset plans its way round: a pybullet client of its own, made at start-up
-        # rather than in the middle of a run, at the first blocked reset.
+        # Reset's planner: a pybullet client of its own, made now, not at a first blocked reset.
         self._reset_model = CollisionModel(s.robot_model)
-        # Reset's way home; a trajectory started since ends it (the others end it in
-        # _command_arm).
+        # Reset's way home; a trajectory started since ends it (the others: _command_arm).
         self._homing = Homing(self._reset_model, self._on_no_way_home)
         self._sim.step_hooks.append(self._step_homing)
         # After the controllers and homing: it judges the targets they have just set.
@@ -280,9 +278,7 @@ class SimNode(Node):
 
 def main(args: Optional[list[str]] = None) -> int:
     """Run the simulator node until Ctrl-C or SIGTERM."""
-    # The camera's colour conversions are too small for OpenCV's worker threads, which then
-    # spin waiting for work (docs/benchmark.md).
-    cv2.setNumThreads(1)
+    cv2.setNumThreads(1)  # the camera's conversions are too small for OpenCV's worker threads
     return run_node(SimNode, args, 'ur_rg2_sim',
                     startup_errors=(CommandError, RobotModelError, RendererError,
                                     ParameterException),

@@ -12,15 +12,10 @@ detections once it is given up). The annotated copy on ``ball/image`` follows as
 messages already waiting have been handled: a depth image that came right behind its colour
 image gives the position first (publishing the image costs 1-2 ms).
 
-All callbacks run one at a time on one thread (rclpy's multi-threaded executor costs twice the
-CPU here and falls behind at 30 Hz): no locks, and a save (~10 ms for both PNGs) simply delays
-the next frame a little. OpenCV runs on that thread too (``main``): its worker threads cost
-more CPU than they save on a frame this size (docs/benchmark.md).
-
-The node works on the newest frame: the image readers keep one message each (KEEP_LAST 1), so
-when a frame takes longer than the camera's period (the learned detector on a busy machine)
-DDS drops the frames that came meanwhile instead of queueing them, and the position published
-is at most about a period older than the frame's own work.
+All callbacks run one at a time on one thread (rclpy's multi-threaded executor cost more CPU
+and fell behind at 30 Hz): no locks, and a save simply delays the next frame. OpenCV runs on
+that thread too, without worker threads (``main``), and on the newest frame
+(``NEWEST_IMAGE_QOS``): frames that came while one was worked on are dropped, not queued.
 """
 
 from dataclasses import dataclass
@@ -32,11 +27,10 @@ from geometry_msgs.msg import Point, PointStamped
 import numpy as np
 from rclpy.exceptions import ParameterException
 from rclpy.node import Node
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
-from ur_rg2_common.contract import IMAGE_QOS
+from ur_rg2_common.contract import IMAGE_QOS, NEWEST_IMAGE_QOS
 from ur_rg2_common.parameters import declare_parameters, follow_settings
 from ur_rg2_common.spin import keep_freed_memory, run_node
 
@@ -53,16 +47,9 @@ NODE_NAME = 'ur_rg2_vision'
 _PENDING_FRAMES = 4  # colour frames waiting for their depth (~130 ms at 30 Hz)
 _EARLY_DEPTHS = 4  # depth images that came before their colour image
 _WARN_PERIOD_S = 10.0  # a persisting input problem is logged again after this long
-# At start-up the camera_info subscription may match the camera a little after the images do:
-# frames without camera_info are only worth a warning after this many, and this long.
+# camera_info may match a little after the images: a warning only after this many and long.
 _INFO_GRACE_FRAMES = 10
 _INFO_GRACE_S = 2.0
-# The camera's images: reliable, as IMAGE_QOS (best-effort readers lose most fragments of an
-# image), but only the newest one kept. A learned frame takes 18-25 ms of the 33 ms period,
-# more when other processes share the cores: with IMAGE_QOS's five, a node that fell behind
-# worked through up to five stale frames (colour stamp -> ball/position p95 190-220 ms).
-_NEWEST_IMAGE_QOS = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
-                              reliability=ReliabilityPolicy.RELIABLE)
 
 
 @dataclass
@@ -107,9 +94,9 @@ class VisionNode(Node):
         self.create_subscription(CameraInfo, 'camera/color/camera_info', self._on_camera_info,
                                  IMAGE_QOS)
         self.create_subscription(Image, 'camera/color/image_raw', self._on_color,
-                                 _NEWEST_IMAGE_QOS)
+                                 NEWEST_IMAGE_QOS)
         self.create_subscription(Image, 'camera/depth/image_raw', self._on_depth,
-                                 _NEWEST_IMAGE_QOS)
+                                 NEWEST_IMAGE_QOS)
         self._position_pub = self.create_publisher(PointStamped, 'ball/position', 10)
         self._image_pub = self.create_publisher(Image, 'ball/image', IMAGE_QOS)
         # The executor takes a triggered guard condition after the subscriptions ready with it.
@@ -297,8 +284,7 @@ class VisionNode(Node):
         response.message = ' '.join(paths)
         if frame.depth is None:
             response.message += ' (no depth image for this frame)'
-        # Debug: the answer reaches the caller (keys prints it); an info line would repeat it
-        # in the same terminal.
+        # Debug: the caller (keys) prints the answer; an info line would repeat it there.
         self.get_logger().debug(f'saved {response.message}')
         return response
 

@@ -16,11 +16,12 @@ import time
 
 from action_msgs.msg import GoalStatus
 from control_msgs.action import GripperCommand, ParallelGripperCommand
-from rclpy.action import ActionClient, CancelResponse
+from rclpy.action import CancelResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
+from ur_rg2_common.action_client import ThreadSafeActionClient
 from ur_rg2_common.action_server import WorkerActionServer
 from ur_rg2_common.contract import GRIPPER_ACTION, GRIPPER_JOINTS, RG2_MAX_OPENING
 from ur_rg2_common.parameters import declare_parameters, follow_settings
@@ -52,7 +53,7 @@ class Rg2Adapter(Node):
         self.blocking_group = ReentrantCallbackGroup()
         self._lock = threading.Lock()
         self._stroke: float | None = None
-        self._driver = ActionClient(self, ParallelGripperCommand, s.onrobot_action)
+        self._driver = ThreadSafeActionClient(self, ParallelGripperCommand, s.onrobot_action)
         self._states = self.create_publisher(JointState, 'joint_states', 10)
         self.create_subscription(JointState, s.onrobot_joint_states, self._on_state, 10)
         self._workers = ThreadPoolExecutor(2, thread_name_prefix='rg2')

@@ -19,11 +19,11 @@ import threading
 import time
 
 from control_msgs.action import FollowJointTrajectory, GripperCommand
-from rclpy.action import ActionClient
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from std_msgs.msg import Bool, String
 from std_srvs.srv import Trigger
+from ur_rg2_common.action_client import ThreadSafeActionClient
 from ur_rg2_common.contract import (
     GRIPPER_ACTION,
     LATCHED_QOS,
@@ -67,8 +67,8 @@ class PolicyNode(Node):
         self._episode: Episode | None = None  # the running episode
 
         subscribe(self, self.state, self._on_description)
-        self._trajectory = ActionClient(self, FollowJointTrajectory, TRAJECTORY_ACTION)
-        self._gripper = ActionClient(self, GripperCommand, GRIPPER_ACTION)
+        self._trajectory = ThreadSafeActionClient(self, FollowJointTrajectory, TRAJECTORY_ACTION)
+        self._gripper = ThreadSafeActionClient(self, GripperCommand, GRIPPER_ACTION)
         self._driving = self.create_publisher(Bool, 'policy/driving', LATCHED_QOS)
         self._driving.publish(Bool(data=False))
         self._result = self.create_publisher(String, 'policy/result', LATCHED_QOS)

@@ -19,12 +19,12 @@ import threading
 from control_msgs.action import FollowJointTrajectory, GripperCommand
 from geometry_msgs.msg import PoseStamped, TransformStamped
 import numpy as np
-from rclpy.action import ActionClient
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, String
 from std_srvs.srv import Trigger
+from ur_rg2_common.action_client import ThreadSafeActionClient
 from ur_rg2_common.contract import GRIPPER_ACTION, LATCHED_QOS, TRAJECTORY_ACTION
 from ur_rg2_common.episode import EpisodeMarkers
 from ur_rg2_common.parameters import declare_parameters, follow_settings
@@ -88,8 +88,8 @@ class MotionNode(Node):
         for topic in ('joint_jog', 'joint_command'):
             self.create_subscription(JointState, topic,
                                      lambda _message, t=topic: self._cancel_pick(t), 100)
-        self._trajectory = ActionClient(self, FollowJointTrajectory, TRAJECTORY_ACTION)
-        self._gripper = ActionClient(self, GripperCommand, GRIPPER_ACTION)
+        self._trajectory = ThreadSafeActionClient(self, FollowJointTrajectory, TRAJECTORY_ACTION)
+        self._gripper = ThreadSafeActionClient(self, GripperCommand, GRIPPER_ACTION)
         self._arm_io = ControllerArm(
             self._trajectory, self._gripper, self.state, self._send_lock, self._check_pick,
             self._check_pick, self._vision_done, lambda: self._speed_scaling)

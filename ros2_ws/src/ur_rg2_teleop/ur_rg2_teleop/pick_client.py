@@ -10,10 +10,10 @@ import math
 import threading
 
 from action_msgs.msg import GoalStatus
-from rclpy.action import ActionClient
 from rclpy.action.client import ClientGoalHandle
 from rclpy.node import Node
 from rclpy.task import Future
+from ur_rg2_common.action_client import ThreadSafeActionClient
 from ur_rg2_interfaces.action import PickBall
 
 from ur_rg2_teleop.display import Console, outcome_line
@@ -38,7 +38,7 @@ class PickClient:
     """keys' one pick at a time through the action; ``on_success`` when the ball is up."""
 
     def __init__(self, node: Node, console: Console, on_success: Callable[[], None]) -> None:
-        self._client = ActionClient(node, PickBall, PICK_ACTION)
+        self._client = ThreadSafeActionClient(node, PickBall, PICK_ACTION)
         self._name = node.resolve_service_name(PICK_ACTION)
         self._console, self._on_success = console, on_success
         self._lock = threading.Lock()

@@ -21,7 +21,6 @@ import time
 from geometry_msgs.msg import PointStamped
 from rcl_interfaces.srv import GetParameters, SetParameters
 import rclpy
-from rclpy.action import ActionClient
 from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_sensor_data
 from rclpy.signals import SignalHandlerOptions
@@ -29,6 +28,7 @@ from rclpy.utilities import remove_ros_args
 from sensor_msgs.msg import CameraInfo, JointState
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
+from ur_rg2_common.action_client import ThreadSafeActionClient
 from ur_rg2_common.contract import ARM_JOINTS, EPISODE_QOS, EPISODE_TOPIC, IMAGE_QOS
 from ur_rg2_common.self_spinning import SelfSpinningNode
 from ur_rg2_interfaces.action import PickBall
@@ -69,7 +69,7 @@ class GraphDriver(SelfSpinningNode):
         self._set = self.create_client(SetParameters, f'{SIM_NODE}/set_parameters')
         self._reset = self.create_client(Trigger, 'reset')
         self._open = self.create_client(Trigger, 'gripper/open')
-        self._pick = ActionClient(self, PickBall, 'pick_ball')
+        self._pick = ThreadSafeActionClient(self, PickBall, 'pick_ball')
         self.sightings = 0
         self.joints: JointState | None = None
         self.info: CameraInfo | None = None

@@ -17,9 +17,9 @@ from conftest import wait_for
 from control_msgs.action import FollowJointTrajectory, GripperCommand
 from control_msgs.msg import JointComponentTolerance
 import pytest
-from rclpy.action import ActionClient
 from tf2_msgs.msg import TFMessage
 from trajectory_msgs.msg import JointTrajectoryPoint
+from ur_rg2_common.action_client import ThreadSafeActionClient
 
 # ROS Jazzy's type hashes (REP 2011). TFMessage's is the one real Jazzy publishes. The control_msgs
 # ones equal those in public code generated from control_msgs 5.x: the messages' from Jazzy's
@@ -212,7 +212,7 @@ def test_tf_message_crosses_processes_with_jazzys_type_hash(ros_graph, run_pytho
     assert transform.transform.rotation.w == 1.0
 
 
-def call(client: ActionClient, goal, feedback: list) -> object:
+def call(client: ThreadSafeActionClient, goal, feedback: list) -> object:
     """Send ``goal``; return the result once the server has answered (wrapped, with status)."""
     sent = client.send_goal_async(goal, feedback_callback=feedback.append)
     handle = wait_for(lambda: sent.done() and sent.result(), TIMEOUT, 'the goal response')
@@ -223,8 +223,8 @@ def call(client: ActionClient, goal, feedback: list) -> object:
 
 def test_controller_actions_cross_processes(ros_graph, run_python):
     node = ros_graph.node('action_client')
-    trajectory_client = ActionClient(node, FollowJointTrajectory, TRAJECTORY_ACTION)
-    gripper_client = ActionClient(node, GripperCommand, GRIPPER_ACTION)
+    trajectory_client = ThreadSafeActionClient(node, FollowJointTrajectory, TRAJECTORY_ACTION)
+    gripper_client = ThreadSafeActionClient(node, GripperCommand, GRIPPER_ACTION)
     server = run_python(ACTION_SERVER, ros_graph.env)
     wait_for(lambda: (trajectory_client.server_is_ready() and gripper_client.server_is_ready())
              or server.poll() is not None, TIMEOUT, 'the action servers')

@@ -16,10 +16,10 @@ from conftest import wait_for
 from geometry_msgs.msg import PointStamped, PoseStamped
 import numpy as np
 import pytest
-from rclpy.action import ActionClient
 from rclpy.parameter import Parameter
 from test_motion_node import TIMEOUT, Rig, ball_held
 from test_motion_pick import BALL, SETTINGS, ScriptedArm, model  # noqa: F401 - a fixture
+from ur_rg2_common.action_client import ThreadSafeActionClient
 from ur_rg2_interfaces.action import PickBall
 from ur_rg2_motion.pick import PickCancelledError, PickError, run_pick
 from ur_rg2_motion.pick_action import (
@@ -152,7 +152,7 @@ def test_ros2_action_send_goal_picks_the_ball_with_feedback(ros_graph):
 
 def test_a_cancel_mid_way_holds_the_arm_where_it_is(ros_graph):
     rig = BallRig(ros_graph, real_time_factor=1.0)
-    client = ActionClient(rig.node, PickBall, 'pick_ball')
+    client = ThreadSafeActionClient(rig.node, PickBall, 'pick_ball')
     wait_for(client.server_is_ready, TIMEOUT, 'the pick_ball action')
     feedback: list[PickBall.Feedback] = []
     sent = client.send_goal_async(PickBall.Goal(),

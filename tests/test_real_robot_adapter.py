@@ -8,10 +8,10 @@ from action_msgs.msg import GoalStatus
 from conftest import wait_for
 from control_msgs.action import GripperCommand
 import pytest
-from rclpy.action import ActionClient
 from real_robot_standins import OnRobotGripper, add
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
+from ur_rg2_common.action_client import ThreadSafeActionClient
 from ur_rg2_common.contract import GRIPPER_ACTION, GRIPPER_JOINTS
 from ur_rg2_hardware.gripper_mapping import grip_goal, outcome
 from ur_rg2_hardware.rg2_adapter import Rg2Adapter
@@ -61,7 +61,7 @@ def test_the_adapter_reports_a_grasp_as_succeeded_and_stalled_and_feeds_the_open
     openings = []
     probe.create_subscription(JointState, 'joint_states', lambda m: openings.append(
         sum(m.position[m.name.index(n)] for n in GRIPPER_JOINTS)), 10)
-    client = ActionClient(probe, GripperCommand, GRIPPER_ACTION)
+    client = ThreadSafeActionClient(probe, GripperCommand, GRIPPER_ACTION)
     wait_for(client.server_is_ready, TIMEOUT, 'the adapter')
     wait_for(lambda: openings, TIMEOUT, 'the opening on joint_states')
     assert abs(openings[-1] - 0.110) < 1e-6
@@ -99,7 +99,7 @@ def test_the_adapter_reports_a_grasp_as_succeeded_and_stalled_and_feeds_the_open
 def test_without_the_driver_a_goal_fails_saying_what_is_missing(ros_graph, capfd):
     add(ros_graph, Rg2Adapter(context=ros_graph.context))
     probe = ros_graph.node('probe')
-    client = ActionClient(probe, GripperCommand, GRIPPER_ACTION)
+    client = ThreadSafeActionClient(probe, GripperCommand, GRIPPER_ACTION)
     wait_for(client.server_is_ready, TIMEOUT, 'the adapter')
     sent = client.send_goal_async(GripperCommand.Goal())
     wait_for(sent.done, TIMEOUT, 'the goal accepted')

@@ -15,9 +15,9 @@ from control_msgs.action import FollowJointTrajectory, GripperCommand
 from control_msgs.msg import JointTolerance
 import numpy as np
 import pytest
-from rclpy.action import ActionClient
 from test_sim_node import FAST, GRIPPER_DOWN, Probe, run_sim, stamp_ns
 from trajectory_msgs.msg import JointTrajectoryPoint
+from ur_rg2_common.action_client import ThreadSafeActionClient
 from ur_rg2_common.contract import ARM_JOINTS, GRIPPER_ACTION, TRAJECTORY_ACTION
 from ur_rg2_sim.world import SimWorld, WorldConfig
 
@@ -51,8 +51,8 @@ class Controllers(Probe):
 
     def __init__(self, graph) -> None:
         super().__init__(graph)
-        self.arm = ActionClient(self.node, FollowJointTrajectory, TRAJECTORY_ACTION)
-        self.gripper = ActionClient(self.node, GripperCommand, GRIPPER_ACTION)
+        self.arm = ThreadSafeActionClient(self.node, FollowJointTrajectory, TRAJECTORY_ACTION)
+        self.gripper = ThreadSafeActionClient(self.node, GripperCommand, GRIPPER_ACTION)
 
     def send_goal(self, client, goal):
         """Send ``goal``; return its handle and the list its feedback is collected in."""

@@ -4,6 +4,7 @@ A mixin of :class:`ur_rg2_sim.world.SimWorld` (its pybullet client ``self._p``).
 """
 
 from dataclasses import dataclass
+import functools
 import math
 
 import pybullet
@@ -33,8 +34,6 @@ SELF_COLLISION_PAIRS = tuple(
 
 # A position motor holding its joint keeps it this close to the target (rad), also against a
 # contact; a joint further off is on its way somewhere (or pressed back from there).
-# A position motor holding its joint keeps it this close to the target (rad), also against a
-# contact; a joint further off is on its way somewhere (or pressed back from there).
 _HOLDING_ERROR = 2e-3
 
 
@@ -55,6 +54,10 @@ class ContactsMixin:
     """Contact settings and queries of a SimWorld."""
 
     def _configure_contacts(self) -> None:
+        # The robot's contact points of the last step, as pybullet gives them: asked before
+        # every step, so bound once, with positional arguments (the cheapest call).
+        self.robot_contact_points = functools.partial(
+            pybullet.getContactPoints, self.robot, -1, -2, -2, self.client)
         # The floor and the pedestal are solid for the whole arm and gripper, except where the
         # base sits on the plate by design (its mesh reaches a few mm into it).
         self._on_pedestal = (-1, self._link_index['base_link'], self._link_index['base'])
@@ -83,7 +86,7 @@ class ContactsMixin:
                 rollingFriction=_BALL_ROLLING_FRICTION,
                 contactStiffness=_CONTACT_STIFFNESS, contactDamping=_CONTACT_DAMPING)
 
-    def obstacle_contacts(self) -> list[Contact]:
+    def obstacle_contacts(self, points: tuple | None = None) -> list[Contact]:
         """Return the links pressing on the floor, the pedestal or the arm (last step).
 
         One Contact per link and obstacle: ``force`` is the sum over its contact points,
@@ -91,10 +94,12 @@ class ContactsMixin:
         joint went from where it is to its target (the Jacobian there times the joints'
         remaining travel): positive while a command drives the link into it; ``incidence``
         the sine of the angle between that motion and the obstacle's surface. A joint within
-        ``_HOLDING_ERROR`` of its target counts as holding, not moving.
+        ``_HOLDING_ERROR`` of its target counts as holding, not moving. ``points``: those of
+        :attr:`robot_contact_points` when the caller has them already.
         """
-        points = self._p.getContactPoints(self.robot)
-        if not points:  # most steps: the check runs before every one
+        if points is None:
+            points = self.robot_contact_points()
+        if not points:
             return []
         pairs: dict[tuple[int, int, int], list] = {}
         for c in points:

@@ -63,7 +63,8 @@ class ProtectiveStop:
 
     def step(self, world: SimWorld, now_ns: int) -> Optional[Contact]:
         """Check the contacts of the last physics step; stop the arm if it is driven in."""
-        contacts = world.obstacle_contacts()
+        points = world.robot_contact_points()
+        contacts = world.obstacle_contacts(points) if points else None
         if not contacts:  # most steps: nothing to judge, and not stuck on anything
             self._stuck_since_ns = None
             return None

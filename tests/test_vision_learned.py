@@ -32,6 +32,8 @@ from ur_rg2_vision.dataset import yolo_label
 from ur_rg2_vision.learned import (
     MODEL_FILE,
     SETTINGS_FILE,
+    SHIPPED_MODEL,
+    SINGLE_PASS_FILE,
     BallModel,
     ModelError,
     box_detection,
@@ -164,6 +166,8 @@ def test_short_training_exports_a_model_evaluate_reads_and_vision_serves(tmp_pat
         assert (tmp_path / 'again' / 'training_curve.png').read_bytes() == (
             model / 'training_curve.png').read_bytes()
         assert BallModel(tmp_path / 'again').needs_depth
+        assert (tmp_path / 'again' / SINGLE_PASS_FILE).is_file()  # run first by the node
+        assert not (model / SINGLE_PASS_FILE).exists()  # no flip test: one network
     evaluated = subprocess.run(
         [str(BIN / 'evaluate_detector'), '--model', str(model), '--data', str(data)],
         capture_output=True, text=True, timeout=120)
@@ -352,6 +356,46 @@ def test_the_flip_test_sees_a_mirrored_frame_as_its_mirror_image():
                        rows[2:4][:, peaks], atol=1e-4)
     assert not np.allclose(alone[1][4].reshape(12, 16)[:, ::-1], alone[0][4].reshape(12, 16),
                            atol=1e-3)
+
+
+class _Network:
+    """A stand-in for an ONNX Runtime session: gives set scores (one row each), counts runs."""
+
+    def __init__(self, scores: list[float]) -> None:
+        self.scores, self.runs = scores, 0
+
+    def get_inputs(self):
+        return [type('Input', (), {'name': 'images'})]
+
+    def run(self, _outputs, _feeds):
+        self.runs += 1
+        rows = np.zeros((1, 5, 3072), np.float32)
+        for i, score in enumerate(self.scores):
+            rows[0, :, i] = (100 + 40 * i, 100, 30, 30, score)
+        return [rows]
+
+
+@pytest.mark.parametrize('single_pass, runs_flip_test', [
+    ([0.9], False),  # sure of its one box: the mirror image's score cannot take it under 0.35
+    ([0.9, 0.75], False),
+    ([0.1], False),  # nothing the frame shows: no box the average could lift over 0.35
+    ([], False),
+    ([0.5], True),  # between: the flip test decides
+    ([0.9, 0.3], True),
+    ([0.2], True),
+])
+def test_the_shipped_model_runs_its_flip_test_only_where_it_can_change_the_answer(
+        single_pass, runs_flip_test):
+    """The frame alone first; its boxes stand when every one is sure, else the flip test's."""
+    model = BallModel()  # the shipped model: the flip test, at 0.35, with its single pass
+    assert model.confidence == 0.35 and json.loads(
+        (SHIPPED_MODEL / SETTINGS_FILE).read_text())['flip_test']
+    model._single_pass, model._session = _Network(single_pass), _Network([0.6])
+    rgb = np.zeros((480, 640, 3), np.uint8)
+    boxes = model.boxes(rgb, np.ones((480, 640), np.float32))
+    assert model._single_pass.runs == 1 and model._session.runs == runs_flip_test
+    expected = [0.6] if runs_flip_test else [s for s in single_pass if s >= 0.35]
+    assert sorted(box[4] for box in boxes) == pytest.approx(sorted(expected))
 
 
 def test_an_exported_model_loads_back_to_train_further(tmp_path):

@@ -23,7 +23,7 @@ import time
 
 import numpy as np
 from ur_rg2_learning.actor import write_atomically
-from ur_rg2_vision.learned import MODEL_FILE, SETTINGS_FILE, BallModel
+from ur_rg2_vision.learned import MODEL_FILE, SETTINGS_FILE, SINGLE_PASS_FILE, BallModel
 from ur_rg2_vision.learned_input import DEPTH_RELIEF, RGB, input_channels
 
 from ur_rg2_detector.crops import (
@@ -117,7 +117,8 @@ def export(torch, net, size: tuple[int, int], directory: Path, settings: dict,
            flip: bool = False) -> BallModel:
     """Write the network (with its decoding) as ``model.onnx`` and ``settings`` beside it.
 
-    ``flip``: with the flip test (:class:`ur_rg2_detector.detector_net.Exported`).
+    ``flip``: with the flip test (:class:`ur_rg2_detector.detector_net.Exported`), and the
+    network on the frame alone beside it (``SINGLE_PASS_FILE``), which the node runs first.
 
     Returns it loaded as the vision node loads it: scoring it scores what the node runs
     (ONNX Runtime, the frame scaled as the node scales it, non-maximum suppression).
@@ -125,13 +126,19 @@ def export(torch, net, size: tuple[int, int], directory: Path, settings: dict,
     from ur_rg2_detector.detector_net import Exported
 
     directory.mkdir(parents=True, exist_ok=True)
-    temporary = directory / (MODEL_FILE + '.tmp')
     net.eval()
     channels = input_channels(settings['inputs'])
-    torch.onnx.export(Exported(net, flip), (torch.zeros(1, channels, *size),), str(temporary),
-                      dynamo=False, opset_version=13, input_names=['images'],
-                      output_names=['output'])
-    os.replace(temporary, directory / MODEL_FILE)
+    exports = {MODEL_FILE: flip}
+    if flip:
+        exports[SINGLE_PASS_FILE] = False
+    else:
+        (directory / SINGLE_PASS_FILE).unlink(missing_ok=True)  # of an export with the test
+    for name, flipped in exports.items():
+        temporary = directory / (name + '.tmp')
+        torch.onnx.export(Exported(net, flipped), (torch.zeros(1, channels, *size),),
+                          str(temporary), dynamo=False, opset_version=13,
+                          input_names=['images'], output_names=['output'])
+        os.replace(temporary, directory / name)
     write_atomically(directory / SETTINGS_FILE,
                      lambda f: f.write((json.dumps(settings, indent=2) + '\n').encode()))
     return BallModel(directory)

@@ -43,14 +43,21 @@ from ur_rg2_vision.learned_input import (
 from ur_rg2_vision.sphere import sphere_box
 
 MODEL_FILE = 'model.onnx'
+SINGLE_PASS_FILE = 'model_single_pass.onnx'  # beside a flip-test model: the frame alone
 SETTINGS_FILE = 'detector.json'
 SHIPPED_MODEL = Path(__file__).resolve().parent / 'models' / 'ball'
 _MAX_CANDIDATES = 100  # boxes over the threshold kept for non-maximum suppression
 _MAX_BOXES = 6  # the most confident boxes after it: bounds the work per frame
 _FIT_ITERATIONS = 6
 _BORDER_PX = 1.0  # a box side this near the image border is cut off there, not the outline
+
+
 class ModelError(ValueError):
     """A model directory that is missing, incomplete or unreadable, with the reason."""
+
+
+def _run(session, blob: np.ndarray) -> np.ndarray:
+    return session.run(None, {session.get_inputs()[0].name: blob})[0]
 
 
 class BallModel:
@@ -59,7 +66,7 @@ class BallModel:
     def __init__(self, model_dir: str | os.PathLike | None = None) -> None:
         directory = Path(model_dir) if model_dir else SHIPPED_MODEL
         self.directory = directory
-        settings_path, model_path = directory / SETTINGS_FILE, directory / MODEL_FILE
+        settings_path = directory / SETTINGS_FILE
         if not directory.is_dir():
             raise ModelError(f'model_dir {str(directory)!r} is not a directory')
         try:
@@ -84,32 +91,61 @@ class BallModel:
         except ImportError as error:
             raise ModelError(f'model_dir {str(directory)!r}: the learned detector needs '
                              f'onnxruntime (requirements.txt): {error}') from None
-        options = onnxruntime.SessionOptions()
-        # One thread: the node works on one frame at a time, and the machine has few cores.
-        options.intra_op_num_threads = options.inter_op_num_threads = 1
-        options.log_severity_level = 3  # errors only: its warnings are not the user's
-        try:
-            self._session = onnxruntime.InferenceSession(
-                str(model_path), options, providers=['CPUExecutionProvider'])
-            self._input = self._session.get_inputs()[0].name
-            output = self._forward(np.zeros((1, input_channels(self.inputs), height, width),
-                                            np.float32))
-        # A missing, corrupt or mismatched file: onnxruntime's own exception classes, which
-        # derive from Exception alone.
-        except Exception as error:
-            reason = str(error).strip().splitlines()[-1] if str(error).strip() else ''
-            raise ModelError(f'model_dir {str(directory)!r}: cannot run {MODEL_FILE} '
-                             f'({type(error).__name__}: {reason})') from None
+        zeros = np.zeros((1, input_channels(self.inputs), height, width), np.float32)
+        self._session, output = self._load(onnxruntime, MODEL_FILE, zeros)
         channels = 4 + len(self.names)
         if output.ndim != 3 or output.shape[0] != 1 or channels not in output.shape[1:]:
             raise ModelError(f'model_dir {str(directory)!r}: {MODEL_FILE} gives output '
                              f'{list(output.shape)}, expected 1 x {channels} x N (YOLOv8 '
                              f'layout, {len(self.names)} classes) or its transpose')
         self._transposed = output.shape[1] != channels
+        # A model with the flip test may have the network on the frame alone beside it: run
+        # first, it decides every frame the mirror image could not change (see boxes()).
+        self._single_pass = None
+        if settings.get('flip_test') and (directory / SINGLE_PASS_FILE).is_file():
+            self._single_pass, single = self._load(onnxruntime, SINGLE_PASS_FILE, zeros)
+            if single.shape != output.shape:
+                raise ModelError(f'model_dir {str(directory)!r}: {SINGLE_PASS_FILE} gives '
+                                 f'output {list(single.shape)}, {MODEL_FILE} '
+                                 f'{list(output.shape)}')
         self._work: ModelInput | None = None  # for frames of the last size
 
-    def _forward(self, blob: np.ndarray) -> np.ndarray:
-        return self._session.run(None, {self._input: blob})[0]
+    def _load(self, onnxruntime, name: str, zeros: np.ndarray) -> tuple[object, np.ndarray]:
+        """Return an ONNX Runtime session of the file ``name`` and its output for ``zeros``."""
+        options = onnxruntime.SessionOptions()
+        # One thread: the node works on one frame at a time, and the machine has few cores.
+        options.intra_op_num_threads = options.inter_op_num_threads = 1
+        options.log_severity_level = 3  # errors only: its warnings are not the user's
+        try:
+            session = onnxruntime.InferenceSession(
+                str(self.directory / name), options, providers=['CPUExecutionProvider'])
+            return session, _run(session, zeros)
+        # A missing, corrupt or mismatched file: onnxruntime's own exception classes, which
+        # derive from Exception alone.
+        except Exception as error:
+            reason = str(error).strip().splitlines()[-1] if str(error).strip() else ''
+            raise ModelError(f'model_dir {str(self.directory)!r}: cannot run {name} '
+                             f'({type(error).__name__}: {reason})') from None
+
+    def _rows(self, blob: np.ndarray) -> np.ndarray:
+        """Return the network's N x (4 + classes) rows for ``blob``.
+
+        With a single-pass model beside a flip-test one, that runs first. Its rows are the
+        answer when the flip test could not change which boxes pass: none scores
+        ``confidence / 2`` or more (a mirror image would have to see a ball the frame itself
+        hardly shows), or every such box scores ``2 * confidence`` or more (the average with
+        the mirror image's score, 0 at least, passes). Other frames run the flip-test model.
+        """
+        if self._single_pass is not None:
+            rows = self._oriented(_run(self._single_pass, blob))
+            scores = rows[:, 4 + self.ball_class]
+            seen = scores[scores >= self.confidence / 2]
+            if not seen.size or seen.min() >= 2 * self.confidence:
+                return rows
+        return self._oriented(_run(self._session, blob))
+
+    def _oriented(self, output: np.ndarray) -> np.ndarray:
+        return output[0] if self._transposed else output[0].T
 
     @property
     def needs_depth(self) -> bool:
@@ -135,9 +171,7 @@ class BallModel:
         blob = self._work.fill(rgb, depth)
         box = self._work.letterbox
         scale, left, top = box.scale, box.left, box.top
-        output = self._forward(blob)[0]
-        if not self._transposed:
-            output = output.T  # N x (4 + classes)
+        output = self._rows(blob)
         scores = output[:, 4 + self.ball_class]
         if len(self.names) > 1:  # a box is the ball's when the ball is its best class
             scores = np.where(output[:, 4:].argmax(axis=1) == self.ball_class, scores, 0.0)

@@ -93,8 +93,8 @@ def test_model_input_is_the_plain_one_frame_after_frame_and_size_after_size():
     model = BallModel()
     assert model.needs_depth  # the shipped model: RGB and the depth's relief
     inputs = []
-    forward = model._forward
-    model._forward = lambda blob: inputs.append(blob.copy()) or forward(blob)
+    rows = model._rows
+    model._rows = lambda blob: inputs.append(blob.copy()) or rows(blob)
     frames = [frame(2), frame(3), frame(4, 360, 640), frame(5, 240, 320), frame(2)]
     for rgb, depth in frames:
         boxes = model.boxes(rgb, depth)

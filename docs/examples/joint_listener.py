@@ -5,10 +5,12 @@ Run it while the graph runs, in a shell where ``source scripts/env.sh`` was done
 """
 
 import math
+import signal
 
 import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import JointState
 
 
@@ -35,14 +37,18 @@ class JointListener(Node):
 
 def main() -> None:
     """Listen until Ctrl-C."""
-    rclpy.init()
+    # Ctrl-C only ends the loop below. A KeyboardInterrupt could land while rclpy converts a
+    # message, where it comes out as a RuntimeError and a traceback.
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+    stopped = []
+    signal.signal(signal.SIGINT, lambda *_: stopped.append(True))
     node = JointListener()
     try:
         # A bounded wait rather than rclpy.spin(): Ctrl-C is noticed within 0.25 s.
-        while rclpy.ok():
+        while not stopped and rclpy.ok():
             rclpy.spin_once(node, timeout_sec=0.25)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass  # Ctrl-C: a clean exit, no traceback
+    except ExternalShutdownException:
+        pass  # the context was shut down from outside: a clean exit too
     finally:
         node.destroy_node()
         rclpy.try_shutdown()

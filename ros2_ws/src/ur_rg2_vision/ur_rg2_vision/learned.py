@@ -100,7 +100,7 @@ class BallModel:
                              f'layout, {len(self.names)} classes) or its transpose')
         self._transposed = output.shape[1] != channels
         # A model with the flip test may have the network on the frame alone beside it: run
-        # first, it decides every frame the mirror image could not change (see boxes()).
+        # first, it decides every frame the mirror image could not change (see _rows()).
         self._single_pass = None
         if settings.get('flip_test') and (directory / SINGLE_PASS_FILE).is_file():
             self._single_pass, single = self._load(onnxruntime, SINGLE_PASS_FILE, zeros)

@@ -39,3 +39,22 @@ def test_the_node_main_runs_and_its_exit_code_is_kept(tmp_path):
     node = start(tmp_path, 'quick_node', 'def main():\n    print("running")\n    return 3\n')
     out, _ = node.communicate(timeout=30)
     assert (node.returncode, out) == (3, 'running\n')
+
+
+def test_a_sigint_swallowed_while_the_node_module_loads_still_stops_it(tmp_path):
+    # Python drops a KeyboardInterrupt raised in a weakref callback (one of importlib's module
+    # locks has one); the module below drops it the same way.
+    loading, ran = tmp_path / 'loading', tmp_path / 'main_ran'
+    node = start(tmp_path, 'swallowing_node', f'import pathlib, time\n'
+                 f'pathlib.Path({str(loading)!r}).touch()\n'
+                 'try:\n    time.sleep(60)\nexcept KeyboardInterrupt:\n    pass\n'
+                 f'def main():\n    pathlib.Path({str(ran)!r}).touch()\n    return 3\n')
+    try:
+        wait_for(loading.exists, 30.0, 'the node module to start loading')
+        node.send_signal(signal.SIGINT)
+        out, err = node.communicate(timeout=30)
+    finally:
+        node.kill()
+    assert node.returncode == 0
+    assert not ran.exists(), 'the node started after the stop'
+    assert 'Traceback' not in err, err

@@ -43,13 +43,14 @@ PICK_TRIALS = 3  # the bench runs 100
 class Rig:
     """The sim and the motion node in one graph, with a probe that talks to them."""
 
-    def __init__(self, graph, **sim_parameters) -> None:
+    def __init__(self, graph, motion_parameters: dict | None = None, **sim_parameters) -> None:
         sim_parameters.setdefault('camera_rate', 0.0)
         sim_parameters.setdefault('real_time_factor', 3.0)
         self._lock = threading.Lock()
         node = self.node = graph.node('probe')
         self.sim = start_sim(graph, **sim_parameters)
-        self.motion = MotionNode(context=graph.context)
+        self.motion = MotionNode(context=graph.context, parameter_overrides=[
+            Parameter(name, value=value) for name, value in (motion_parameters or {}).items()])
         graph.executor.add_blocking_group(self.motion.blocking_group)
         graph.add(self.motion)
         self.tree = TransformBuffer()

@@ -10,11 +10,30 @@ code 0 and no traceback.
 """
 
 import importlib
+import signal
+
+_stop_signals: list[int] = []
+
+
+def stop_requested() -> bool:
+    """Whether a SIGINT reached :func:`run_main` before the node installed its own handler."""
+    return bool(_stop_signals)
+
+
+def _on_stop(signum: int, frame: object) -> None:
+    # Python drops a KeyboardInterrupt raised inside a weakref callback or a __del__ (one of
+    # importlib's module locks has such a callback): the stop is remembered all the same.
+    _stop_signals.append(signum)
+    raise KeyboardInterrupt
 
 
 def run_main(module: str) -> int:
     """Import ``module`` and return what its ``main()`` returns; 0 if stopped by Ctrl-C/SIGINT."""
+    signal.signal(signal.SIGINT, _on_stop)
     try:
-        return importlib.import_module(module).main()
+        main = importlib.import_module(module).main
+        if stop_requested():
+            return 0
+        return main()
     except KeyboardInterrupt:
         return 0

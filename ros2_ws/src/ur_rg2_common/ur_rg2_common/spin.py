@@ -2,6 +2,7 @@
 
 from collections.abc import Callable
 import ctypes
+import faulthandler
 import signal
 from typing import Optional, TypeVar
 
@@ -11,12 +12,16 @@ from rclpy.logging import get_logger
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
+from ur_rg2_common.entry import stop_requested
 from ur_rg2_common.executors import BlockingGroupExecutor
 
 N = TypeVar('N', bound=Node)
 
 # How long the executor waits for work before the loop looks at rclpy.ok() again, s.
 SPIN_WAIT_S = 0.25
+# A node still running this long after a stop signal prints every thread's stack to stderr, s
+# (ros2 launch escalates to SIGTERM after 5 s).
+STOP_DIAGNOSIS_S = 4.0
 # glibc's mallopt parameters, and what the nodes set them to.
 _M_TRIM_THRESHOLD = -1
 _M_MMAP_THRESHOLD = -3
@@ -68,12 +73,16 @@ def run_node(make_node: Callable[[], N], args: Optional[list[str]], logger_name:
     interrupted = []
 
     def on_stop(signum: int, frame: object) -> None:
+        if not interrupted:
+            faulthandler.dump_traceback_later(STOP_DIAGNOSIS_S)
         interrupted.append(signum)
         # A second SIGINT (a terminal's Ctrl-C and launch's own) changes nothing.
         signal.signal(signal.SIGINT, signal.SIG_IGN)
 
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, on_stop)
+    if stop_requested():
+        return 0
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     executor = BlockingGroupExecutor()
     node = None
@@ -122,4 +131,5 @@ def run_node(make_node: Callable[[], N], args: Optional[list[str]], logger_name:
             # Whatever failed above: a process that exits with its context up leaves DDS's
             # threads to static destructors, which can abort it.
             rclpy.try_shutdown()
+            faulthandler.cancel_dump_traceback_later()
     return 0

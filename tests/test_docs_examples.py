@@ -8,10 +8,11 @@ before it, with ``<!-- docs test: not run, REASON -->``, REASON one of ``MARKS``
 A shell block runs command by command, as typed in a terminal where ``source scripts/env.sh``
 was done: a command that ends by itself has to exit 0; one that runs until Ctrl-C (a launch,
 a node, ``ros2 topic echo``) has to show that it works (``READY``), then stop cleanly on
-SIGINT. Two things differ from a user's terminal: ``scripts/run`` is the command it runs once
-the set-up is done (``python -m ur_rg2_bringup.run``: the suite's own set-up has run), and a
+SIGINT. Three things differ from a user's terminal: ``scripts/run`` is the command it runs once
+the set-up is done (``python -m ur_rg2_bringup.run``: the suite's own set-up has run), a
 viewer port is ``port:=0`` (any free port), so that a graph of the test never meets another
-one's. Where a page shows what a command prints, the output is checked for that shape.
+one's, and the page's graph draws its camera at 10 Hz (the suite runs beside other tests).
+Where a page shows what a command prints, the output is checked for that shape.
 """
 
 from dataclasses import dataclass
@@ -61,6 +62,7 @@ READY = ((_GRAPH, r'ur_rg2_sim\]: simulating'),
 _GRAPH_READY = (r'ur_rg2_sim\]: simulating', r'ur_rg2_motion\]: ready',
                 r'ur_rg2_vision\]: looking for the ball', r'ur_rg2_viewer\]: live view')
 GRAPH_NODES = ('ur_rg2_sim', 'ur_rg2_vision', 'ur_rg2_motion', 'ur_rg2_viewer')
+PAGE_GRAPH = 'camera_rate:=10.0'  # the launch arguments of each page's own graph
 START_TIMEOUT = 90.0  # s: a graph or a node coming up on a loaded machine
 RUN_TIMEOUT = 120.0  # s: a command that ends by itself
 STOP_TIMEOUT = 60.0  # s: Ctrl-C to exit
@@ -341,7 +343,7 @@ def test_the_page_s_blocks_run_as_shown(page):
                ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
     background = []
     try:
-        graph = Process('ros2 launch ur_rg2_bringup graph.launch.py port:=0', env)
+        graph = Process(f'ros2 launch ur_rg2_bringup graph.launch.py port:=0 {PAGE_GRAPH}', env)
         background.append(graph)
         graph.wait_for(_GRAPH_READY, START_TIMEOUT)
         for command in BESIDE_GRAPH.get(name, ()):

@@ -19,19 +19,28 @@ def start(tmp_path, module: str, source: str) -> subprocess.Popen:
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
-def test_a_sigint_while_the_node_module_loads_ends_it_with_no_traceback(tmp_path):
-    loading = tmp_path / 'loading'
-    node = start(tmp_path, 'slow_node', f'import pathlib, time\n'
-                 f'pathlib.Path({str(loading)!r}).touch()\n'
-                 'time.sleep(60)  # a heavy import; the SIGINT ends it at once\n'
-                 'def main():\n    return 3\n')
+def interrupt_while_loading(tmp_path, module: str, loading: str, main: str) -> tuple[int, str]:
+    """SIGINT ``module`` while its ``loading`` source runs; return its exit code and stderr.
+
+    ``loading`` sleeps 60 s, as a heavy import would: the SIGINT must cut it short. The test
+    waits for it to begin on a file, with a deadline.
+    """
+    began = tmp_path / 'loading'
+    node = start(tmp_path, module, 'import pathlib, time\n'
+                 f'pathlib.Path({str(began)!r}).touch()\n{loading}{main}')
     try:
-        wait_for(loading.exists, 30.0, 'the node module to start loading')
+        wait_for(began.exists, 30.0, 'the node module to start loading')
         node.send_signal(signal.SIGINT)
-        out, err = node.communicate(timeout=30)
+        _, err = node.communicate(timeout=30)
     finally:
         node.kill()
-    assert node.returncode == 0
+    return node.returncode, err
+
+
+def test_a_sigint_while_the_node_module_loads_ends_it_with_no_traceback(tmp_path):
+    code, err = interrupt_while_loading(tmp_path, 'slow_node', 'time.sleep(60)\n',
+                                        'def main():\n    return 3\n')
+    assert code == 0
     assert 'Traceback' not in err, err
 
 
@@ -44,17 +53,11 @@ def test_the_node_main_runs_and_its_exit_code_is_kept(tmp_path):
 def test_a_sigint_swallowed_while_the_node_module_loads_still_stops_it(tmp_path):
     # Python drops a KeyboardInterrupt raised in a weakref callback (one of importlib's module
     # locks has one); the module below drops it the same way.
-    loading, ran = tmp_path / 'loading', tmp_path / 'main_ran'
-    node = start(tmp_path, 'swallowing_node', f'import pathlib, time\n'
-                 f'pathlib.Path({str(loading)!r}).touch()\n'
-                 'try:\n    time.sleep(60)\nexcept KeyboardInterrupt:\n    pass\n'
-                 f'def main():\n    pathlib.Path({str(ran)!r}).touch()\n    return 3\n')
-    try:
-        wait_for(loading.exists, 30.0, 'the node module to start loading')
-        node.send_signal(signal.SIGINT)
-        out, err = node.communicate(timeout=30)
-    finally:
-        node.kill()
-    assert node.returncode == 0
+    ran = tmp_path / 'main_ran'
+    code, err = interrupt_while_loading(
+        tmp_path, 'swallowing_node',
+        'try:\n    time.sleep(60)\nexcept KeyboardInterrupt:\n    pass\n',
+        f'def main():\n    pathlib.Path({str(ran)!r}).touch()\n    return 3\n')
+    assert code == 0
     assert not ran.exists(), 'the node started after the stop'
     assert 'Traceback' not in err, err

@@ -52,6 +52,29 @@ def ignore_stop_signals() -> None:
         signal.signal(signum, signal.SIG_IGN)
 
 
+def _catch_stop_signals() -> list[int]:
+    """Make SIGINT and SIGTERM append to the returned list; the first arms a stack dump.
+
+    SIGINT (how ros2 launch and ros2 run stop a node, even one started with SIGINT ignored)
+    and SIGTERM set a flag that :func:`run_node`'s loop sees within SPIN_WAIT_S. A
+    KeyboardInterrupt could land anywhere: inside rclpy's own objects, or in a constructor that
+    has started a thread. Not rclpy's handlers either: they shut the context down at once,
+    under the callback or constructor that is running (its log lines and messages would fail).
+    """
+    interrupted: list[int] = []
+
+    def on_stop(signum: int, frame: object) -> None:
+        if not interrupted:
+            faulthandler.dump_traceback_later(STOP_DIAGNOSIS_S)
+        interrupted.append(signum)
+        # A second SIGINT (a terminal's Ctrl-C and launch's own) changes nothing.
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, on_stop)
+    return interrupted
+
+
 def run_node(make_node: Callable[[], N], args: Optional[list[str]], logger_name: str,
              startup_errors: tuple[type[Exception], ...] = (), *,
              on_startup_error: Optional[Callable[[Exception], int]] = None,
@@ -65,22 +88,7 @@ def run_node(make_node: Callable[[], N], args: Optional[list[str]], logger_name:
     ``failure``, if given, is asked after every wait: a message from it is logged as fatal and
     ends the process with exit code 1.
     """
-    # SIGINT (how ros2 launch and ros2 run stop a node, even one started with SIGINT ignored)
-    # and SIGTERM set a flag that the loop below sees within SPIN_WAIT_S. A KeyboardInterrupt
-    # could land anywhere: inside rclpy's own objects, or in a constructor that has started a
-    # thread. Not rclpy's handlers either: they shut the context down at once, under the
-    # callback or constructor that is running (its log lines and messages would fail).
-    interrupted = []
-
-    def on_stop(signum: int, frame: object) -> None:
-        if not interrupted:
-            faulthandler.dump_traceback_later(STOP_DIAGNOSIS_S)
-        interrupted.append(signum)
-        # A second SIGINT (a terminal's Ctrl-C and launch's own) changes nothing.
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-    for signum in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(signum, on_stop)
+    interrupted = _catch_stop_signals()
     if stop_requested():
         return 0
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)

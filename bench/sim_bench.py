@@ -189,7 +189,7 @@ def _headless_speed() -> list[tuple[str, str, str]]:
     ratio = runs[len(runs) // 2][0]
     return [('sim: physics steps/s headless (RTF 0, camera off, no subscriber) / stepSimulation '
              'alone on the same world, this run',
-             f"{ratio:.2f}, the median of {len(runs)} runs: "
+             f"{ratio:.3f}, the median of {len(runs)} runs: "
              f"{', '.join(f'{stepped:,.0f} / {alone:,.0f}' for _, stepped, alone in runs)} "
              f"(load {'-'.join(loads)})", '>= 0.9')]
 

@@ -72,7 +72,11 @@ class PhysicsShare(NamedTuple):
     raw: float  # stepSimulation alone on the env's world, between the env's rounds
     inside: float  # the env's own physics steps, timed where the env takes them
     steps: float  # env steps/s
-    share: float  # of the env's time, the part in its own physics steps
+
+    @property
+    def share(self) -> float:
+        """Of the env's time, the part in its own physics steps."""
+        return self.physics / self.inside
 
 
 def physics_share(env_id: str, steps: int, rounds: int) -> PhysicsShare:
@@ -111,7 +115,7 @@ def physics_share(env_id: str, steps: int, rounds: int) -> PhysicsShare:
     finally:
         env.close()
     return PhysicsShare(physics / elapsed, sum(raw) / len(raw), physics / in_physics[0],
-                        rounds * steps / elapsed, in_physics[0] / elapsed)
+                        rounds * steps / elapsed)
 
 
 class NullEnv(gym.Env):

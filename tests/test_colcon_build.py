@@ -64,7 +64,7 @@ sys.meta_path.insert(0, HideSim())
 STARTUP_TIMEOUT = 60.0  # s: five nodes importing rclpy at once on a loaded 2-core machine
 # What scripts/build-interfaces gives CMake for the PyPI ROS wheels (a ROS install needs none).
 PIP_CMAKE_ARGS = (
-    f'-DCMAKE_PROJECT_INCLUDE={ROOT}/interfaces/cmake/drop_foreign_include_dirs.cmake',
+    f'-DCMAKE_PROJECT_INCLUDE={ROOT}/interfaces/cmake/pypi_wheels.cmake',
     f'-DPython3_EXECUTABLE={sys.executable}', '-DBUILD_TESTING=OFF')
 
 

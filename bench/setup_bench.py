@@ -2,10 +2,11 @@
 
 The ROS wheels are already in the venv (bootstrap ran), so the message build is the part of a
 fresh set-up that the pip cache does not save: ``scripts/build-interfaces --force`` builds
-tf2_msgs, control_msgs and composition_interfaces from clean into a temporary prefix, leaving
-the venv's own install alone. The tools (ros2cli, launch, launch_ros: requirements-ros-tools.txt)
-install from their local wheels into a temporary directory, as bootstrap installs them into the
-venv. Run alone with ``python -m bench.setup_bench``.
+tf2_msgs, control_msgs, composition_interfaces and ur_rg2_interfaces from clean into a
+temporary prefix, leaving the venv's own install alone. The tools (ros2cli, launch,
+launch_ros: requirements-ros-tools.txt) install from their local wheels into a temporary
+directory, as bootstrap installs them into the venv. Run alone with
+``python -m bench.setup_bench``.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ import tempfile
 import time
 
 ROOT = Path(__file__).resolve().parents[1]
-# Our own budget: the packages' generated C/C++ on one 2-core machine, idle.
+# Our own budget: the packages' generated C and Python on one 2-core machine, idle.
 TARGET_S = 60.0
 TOOLS_TARGET_S = 30.0
 TOOLS = ROOT / 'requirements-ros-tools.txt'
@@ -65,8 +66,8 @@ def run() -> list[tuple[str, str, str]]:
     # CPU time says what the build costs whatever else the machine runs; the load says that.
     return [
         _tools_row(),
-        ('set-up: message build (tf2_msgs, control_msgs, composition_interfaces), warm pip '
-         'cache',
+        ('set-up: message build (tf2_msgs, control_msgs, composition_interfaces, '
+         'ur_rg2_interfaces; C and Python), warm pip cache',
          f'{elapsed:.0f} s ({cpu:.0f} s CPU, {os.cpu_count()} cores, '
          f'load {os.getloadavg()[0]:.1f})',
          f'≤ {TARGET_S:g} s'),

@@ -7,6 +7,7 @@ has nothing to do; ``--check`` says so without changing anything.
 from pathlib import Path
 import shutil
 import subprocess
+import sys
 
 import pytest
 
@@ -36,3 +37,17 @@ def test_check_of_a_clone_never_set_up_says_so_and_creates_nothing(tmp_path):
     assert checked.stderr == (f'bootstrap: {tmp_path / ".venv"} is not up to date for '
                               'requirements.txt (scripts/bootstrap requirements.txt updates it)\n')
     assert not (tmp_path / '.venv').exists()
+
+
+@pytest.mark.parametrize('package', ['tf2_msgs', 'control_msgs', 'composition_interfaces',
+                                     'ur_rg2_interfaces'])
+def test_the_message_packages_are_built_for_c_and_python_only(package):
+    # scripts/build-interfaces builds them into the venv that runs the suite.
+    lib = Path(sys.prefix) / 'lib'
+    if not (Path(sys.prefix) / 'share' / 'ur_rg2_interfaces.sha256').is_file():
+        pytest.skip('a ROS install: the distribution built these packages')
+    built = {path.name for path in lib.glob(f'lib{package}__*.so')}
+    assert {f'lib{package}__rosidl_{kind}.so' for kind in (
+        'generator_c', 'generator_py', 'typesupport_c', 'typesupport_fastrtps_c',
+        'typesupport_introspection_c')} <= built
+    assert not {name for name in built if '_cpp' in name}, sorted(built)

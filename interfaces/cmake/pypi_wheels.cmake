@@ -32,10 +32,9 @@ endfunction()
 cmake_language(DEFER DIRECTORY "${CMAKE_SOURCE_DIR}" CALL _ur_rg2_drop_foreign_include_dirs)
 
 # Generate for C and Python only: rclpy loads a message's C type support, and nothing on the
-# pip path is C++. Skipping the four C++ generators halves the build. The registered
-# generators run from ament_execute_extensions, whose EXCLUDE rosidl_generate_interfaces
-# does not pass on: this wraps it (ament_cmake_core is included once per project, so the
-# package's own find_package(ament_cmake) keeps the wrapper).
+# pip path is C++. The registered generators run from ament_execute_extensions, whose EXCLUDE
+# rosidl_generate_interfaces does not pass on: this wraps it (ament_cmake_core is included
+# once per project, so the package's own find_package(ament_cmake) keeps the wrapper).
 find_package(ament_cmake_core REQUIRED QUIET)
 set(_ur_rg2_cpp_generators rosidl_generator_cpp rosidl_typesupport_cpp
   rosidl_typesupport_fastrtps_cpp rosidl_typesupport_introspection_cpp)

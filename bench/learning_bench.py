@@ -4,7 +4,8 @@ Environment steps per second with random actions (episodes reset as they end): o
 environment in this process, and the physics steps it takes per second against those of its
 world stepped by pybullet alone (what the environment's own work leaves of the physics), with
 the share of its time spent in its physics steps, timed where it takes them (its own work is
-the rest), and its world stepped with the arm moving (a motor command, then a step);
+the rest), and its world stepped with the arm moving (a motor command, then a step); Reach
+with more physics steps per action than its task takes (the same rows);
 ``gymnasium.vector.AsyncVectorEnv`` with one worker process per core (every step a round trip
 from this process to each worker), with the Reach environment and with an environment that
 does nothing but has Reach's spaces and info (the most AsyncVectorEnv itself can deliver
@@ -26,6 +27,7 @@ import numpy as np
 from ur_rg2_learning import PICK_ID, REACH_ID
 from ur_rg2_learning.actor import Actor, shipped_policy
 from ur_rg2_learning.evaluate import DEFAULT_SEED, success_rate
+from ur_rg2_learning.robot import CONTROL_RATE
 from ur_rg2_learning.scripted import pick_action
 
 from bench.processes import load, raw_steps_per_second
@@ -34,6 +36,9 @@ STEPS = {REACH_ID: 6000, PICK_ID: 2000}
 # Physics share: this many env steps, then the env's world stepped alone as long, in turns.
 SHARE_STEPS = {REACH_ID: 1500, PICK_ID: 500}
 SHARE_ROUNDS = 3
+# Reach stepped with this many physics steps per action (the shipped task takes 1), to show
+# where more physics per action takes the first row.
+FINER_SUBSTEPS = (4, 10, 24)
 MOVING_STEPS = 3000  # physics steps of the world with its arm moving
 VECTOR_STEPS = 3000  # per worker
 EPISODES = 100
@@ -81,15 +86,14 @@ class PhysicsShare(NamedTuple):
         return self.physics / self.inside
 
 
-def physics_share(env_id: str, steps: int, rounds: int) -> PhysicsShare:
-    """Return an env's physics rates against stepSimulation's alone on its world.
+def physics_share(env: gym.Env, steps: int, rounds: int) -> PhysicsShare:
+    """Return ``env``'s physics rates against stepSimulation's alone on its world; close it.
 
     Env steps with random actions (episodes reset as they end), the physics steps each took
     on average, and how long those took, each timed where the env takes it. In turns, so
     that the machine's drift hits both alike: ``steps`` env steps, then the env's world
     stepped by pybullet alone for as long, ``rounds`` times.
     """
-    env = gym.make(env_id)
     world = env.unwrapped.world
     step_world, in_physics = world.step, [0.0]
 
@@ -120,6 +124,14 @@ def physics_share(env_id: str, steps: int, rounds: int) -> PhysicsShare:
         env.close()
     return PhysicsShare(physics / elapsed, sum(raw) / len(raw), physics / in_physics[0],
                         rounds * steps / elapsed, moving)
+
+
+def finer_reach(substeps: int) -> gym.Env:
+    """Return Reach with ``substeps`` physics steps per action, the motor command once."""
+    env = gym.make(REACH_ID)
+    env.unwrapped.robot.substeps = substeps
+    env.unwrapped.world.set_physics_rate(CONTROL_RATE * substeps)
+    return env
 
 
 def moving_rate(env: gym.Env, steps: int) -> float:
@@ -213,7 +225,7 @@ def run() -> list[tuple[str, str, str]]:
                      f'{rate:.0f} (load {load()}); {per_cpu:.0f} per CPU second', target))
     for env_id, steps in SHARE_STEPS.items():
         loads = [load()]
-        share = physics_share(env_id, steps, SHARE_ROUNDS)
+        share = physics_share(gym.make(env_id), steps, SHARE_ROUNDS)
         loads.append(load())
         rows.append((f'{env_id}: env steps/s x physics steps per env step / stepSimulation '
                      'alone on its world, this run',
@@ -228,6 +240,13 @@ def run() -> list[tuple[str, str, str]]:
                      'each step) / stepSimulation alone at rest, the same run',
                      f'{share.moving:,.0f} / {share.raw:,.0f} = {share.moving / share.raw:.2f}',
                      '-'))
+    for substeps in FINER_SUBSTEPS:
+        share = physics_share(finer_reach(substeps), SHARE_STEPS[REACH_ID], SHARE_ROUNDS)
+        rows.append((f"{REACH_ID} with {substeps} physics steps per action (not the task's "
+                     '1): env physics / stepSimulation alone; share in its own physics; its '
+                     'physics steps/s / stepSimulation alone',
+                     f'{share.physics / share.raw:.2f}; {share.share:.2f}; '
+                     f'{share.inside / share.raw:.2f} (load {load()})', '-'))
     started = time.process_time()
     success = success_rate(pick_action, EPISODES, DEFAULT_SEED, PICK_ID)
     rows.append((f'{PICK_ID} scripted demonstrator: success over {EPISODES} held-out episodes',

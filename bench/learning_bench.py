@@ -26,6 +26,7 @@ import gymnasium as gym
 import numpy as np
 from ur_rg2_learning import PICK_ID, REACH_ID
 from ur_rg2_learning.actor import Actor, shipped_policy
+from ur_rg2_learning.envs import UrRg2Env
 from ur_rg2_learning.evaluate import DEFAULT_SEED, success_rate
 from ur_rg2_learning.robot import CONTROL_RATE
 from ur_rg2_learning.scripted import pick_action
@@ -134,7 +135,7 @@ def finer_reach(substeps: int) -> gym.Env:
     return env
 
 
-def moving_rate(env: gym.Env, steps: int) -> float:
+def moving_rate(env: UrRg2Env, steps: int) -> float:
     """Return physics steps/s of ``env``'s world with its arm moving, nothing else between.
 
     Each step a new motor command (the joints on a smooth path around the reset's posture),
